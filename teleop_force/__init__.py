@@ -1,0 +1,1 @@
+"""Sensorless contact-force estimation for teleoperated haptic robots."""

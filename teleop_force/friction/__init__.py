@@ -1,0 +1,1 @@
+"""Friction models, all linear in their parameters."""

@@ -1,0 +1,85 @@
+"""The :class:`FrictionModel` abstract base: joint friction linear in its parameters.
+
+Every friction model is a set of per-joint bases: joint ``j``'s friction torque is
+``basis(j, qd) @ parameters[slice_j]`` where ``qd`` holds the velocities of all motor joints.
+Keeping the bases per joint (block-diagonal) lets networks with hundreds of wavelets per
+joint be fitted without building a dense ``(samples, joints, parameters)`` tensor.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+import numpy as np
+
+from teleop_force.errors import ModelError
+
+
+class FrictionModel(ABC):
+    """Joint friction ``tau_f(qd)``, linear in ``parameters``."""
+
+    #: Short name used in model files and on the command line.
+    kind: ClassVar[str]
+
+    def __init__(self, n_joints: int, parameters: np.ndarray | None = None) -> None:
+        """Create the model; ``parameters`` defaults to zeros."""
+        if n_joints < 1:
+            raise ModelError(f"friction model needs >= 1 joint, got {n_joints}")
+        self.n_joints = n_joints
+        count = int(sum(self.parameter_counts()))
+        if parameters is None:
+            parameters = np.zeros(count)
+        self.parameters = np.asarray(parameters, dtype=float).copy()
+        if self.parameters.shape != (count,):
+            raise ModelError(f"{self.kind}: expected {count} parameters, got {self.parameters.shape}")
+
+    @abstractmethod
+    def parameter_counts(self) -> tuple[int, ...]:
+        """Number of parameters of each joint's basis."""
+
+    @abstractmethod
+    def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
+        """Basis functions of joint ``joint`` (0-based) at velocities ``qd`` (N x n) -> (N x p_j)."""
+
+    @abstractmethod
+    def parameter_names(self, joint: int) -> list[str]:
+        """Human-readable names of joint ``joint``'s parameters."""
+
+    @abstractmethod
+    def to_dict(self) -> dict[str, Any]:
+        """Serialise to JSON-compatible values (``kind`` included)."""
+
+    def joint_slice(self, joint: int) -> slice:
+        """Slice of ``parameters`` that belongs to ``joint``."""
+        counts = self.parameter_counts()
+        start = int(sum(counts[:joint]))
+        return slice(start, start + counts[joint])
+
+    def joint_parameters(self, joint: int) -> np.ndarray:
+        """View of joint ``joint``'s parameters."""
+        return self.parameters[self.joint_slice(joint)]
+
+    def set_joint_parameters(self, joint: int, values: np.ndarray) -> None:
+        """Overwrite joint ``joint``'s parameters."""
+        self.parameters[self.joint_slice(joint)] = values
+
+    def torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction torque [N m] at velocities ``qd`` ((n,) -> (n,), or (N, n) -> (N, n))."""
+        qd = np.asarray(qd, dtype=float)
+        single = qd.ndim == 1
+        batch = qd.reshape(1, -1) if single else qd
+        if batch.shape[1] != self.n_joints:
+            raise ModelError(f"{self.kind}: expected {self.n_joints} velocities, got {batch.shape[1]}")
+        out = np.empty((batch.shape[0], self.n_joints))
+        for j in range(self.n_joints):
+            out[:, j] = self.basis(j, batch) @ self.joint_parameters(j)
+        return out[0] if single else out
+
+    def coverage_weight(self, qd: np.ndarray) -> np.ndarray:
+        """How much each joint's estimate at ``qd`` (N x n) rests on training data, in [0, 1].
+
+        Models with a fixed parametric shape trust themselves everywhere (all ones).
+        """
+        qd = np.atleast_2d(np.asarray(qd, dtype=float))
+        return np.ones((qd.shape[0], self.n_joints))

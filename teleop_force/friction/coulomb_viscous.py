@@ -1,0 +1,100 @@
+"""Coulomb + viscous friction, plain (per joint) and coupled (paper experiment 2)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from teleop_force.errors import ModelError
+from teleop_force.friction.base import FrictionModel
+
+
+class CoulombViscous(FrictionModel):
+    """``tau_f,i = a_c,i sgn(qd_i) + a_v,i qd_i`` for every joint."""
+
+    kind: ClassVar[str] = "cv"
+
+    def parameter_counts(self) -> tuple[int, ...]:
+        """Two parameters per joint."""
+        return (2,) * self.n_joints
+
+    def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
+        """``[sgn(qd_j), qd_j]``."""
+        v = qd[:, joint]
+        return np.stack((np.sign(v), v), axis=1)
+
+    def parameter_names(self, joint: int) -> list[str]:
+        """``a_c,j`` and ``a_v,j``, 1-based."""
+        return [f"a_c,{joint + 1}", f"a_v,{joint + 1}"]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Serialise."""
+        return {"kind": self.kind, "n_joints": self.n_joints, "parameters": self.parameters.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:
+        """Deserialise what :meth:`to_dict` wrote."""
+        return cls(int(data["n_joints"]), np.asarray(data["parameters"], dtype=float))
+
+
+class CoupledCoulombViscous(FrictionModel):
+    """Coulomb + viscous with relative-velocity terms for coupled joints (paper experiment 2).
+
+    Joint ``j`` whose friction depends on the velocities ``S_j`` gets, for every other joint
+    ``k`` in ``S_j``, the terms ``sgn(qd_a - qd_b)`` and ``(qd_a - qd_b)`` with ``a < b`` the two
+    of ``{j, k}`` in order (for the Omni, ``qd23 = qd2 - qd3`` on joints 2 and 3).
+    """
+
+    kind: ClassVar[str] = "coupled-cv"
+
+    def __init__(
+        self,
+        n_joints: int,
+        friction_inputs: tuple[tuple[int, ...], ...],
+        parameters: np.ndarray | None = None,
+    ) -> None:
+        """Create the model for the given per-joint velocity sets."""
+        if len(friction_inputs) != n_joints:
+            raise ModelError("friction_inputs needs one entry per joint")
+        self.friction_inputs = tuple(tuple(int(k) for k in s) for s in friction_inputs)
+        self._pairs = tuple(
+            tuple((min(j, k), max(j, k)) for k in s if k != j)
+            for j, s in enumerate(self.friction_inputs)
+        )
+        super().__init__(n_joints, parameters)
+
+    def parameter_counts(self) -> tuple[int, ...]:
+        """Two, plus two per coupled joint."""
+        return tuple(2 + 2 * len(p) for p in self._pairs)
+
+    def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
+        """``[sgn(qd_j), qd_j, sgn(qd_ab), qd_ab, ...]``."""
+        v = qd[:, joint]
+        columns = [np.sign(v), v]
+        for a, b in self._pairs[joint]:
+            rel = qd[:, a] - qd[:, b]
+            columns += [np.sign(rel), rel]
+        return np.stack(columns, axis=1)
+
+    def parameter_names(self, joint: int) -> list[str]:
+        """``a_c,j``, ``a_v,j``, then ``a_cr,j(ab)`` and ``a_vr,j(ab)`` per pair."""
+        names = [f"a_c,{joint + 1}", f"a_v,{joint + 1}"]
+        for a, b in self._pairs[joint]:
+            names += [f"a_cr,{joint + 1}({a + 1}{b + 1})", f"a_vr,{joint + 1}({a + 1}{b + 1})"]
+        return names
+
+    def to_dict(self) -> dict[str, Any]:
+        """Serialise."""
+        return {
+            "kind": self.kind,
+            "n_joints": self.n_joints,
+            "friction_inputs": [list(s) for s in self.friction_inputs],
+            "parameters": self.parameters.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CoupledCoulombViscous:
+        """Deserialise what :meth:`to_dict` wrote."""
+        inputs = tuple(tuple(int(k) for k in s) for s in data["friction_inputs"])
+        return cls(int(data["n_joints"]), inputs, np.asarray(data["parameters"], dtype=float))
