@@ -1,1 +1,28 @@
 """Friction models, all linear in their parameters."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from teleop_force.errors import ModelError
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+
+FRICTION_KINDS = ("cv", "coupled-cv", "wn")
+
+
+def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
+    """Rebuild a friction model from its ``to_dict`` form."""
+    kind = data.get("kind") if isinstance(data, dict) else None
+    if kind == CoulombViscous.kind:
+        return CoulombViscous.from_dict(data)
+    if kind == CoupledCoulombViscous.kind:
+        return CoupledCoulombViscous.from_dict(data)
+    if kind == "wn":
+        from teleop_force.friction.wavelet_network import WaveletNetwork
+
+        return WaveletNetwork.from_dict(data)
+    raise ModelError(f"unknown friction kind {kind!r}; expected one of {', '.join(FRICTION_KINDS)}")
+
+
+__all__ = ["FRICTION_KINDS", "CoulombViscous", "CoupledCoulombViscous", "FrictionModel", "friction_from_dict"]

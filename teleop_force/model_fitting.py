@@ -1,0 +1,199 @@
+"""From recordings to a :class:`~teleop_force.dynamic_model.DynamicModel`, and back to figures.
+
+Identification runs in two stages, as in the paper: the rigid-body base parameters are fitted
+together with a Coulomb-viscous (or coupled) friction that absorbs friction "noise"; a
+wavelet-network friction is then trained on what the rigid-body model leaves (the filtered
+friction torque), with the stage-one coupled CV kept as its off-ground fallback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from teleop_force.dynamic_model import DynamicModel
+from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.filtered_regressor import FilterConfig, FilteredSignals, filter_signals
+from teleop_force.friction import FRICTION_KINDS
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.identification import Identification, least_squares, relative_rms
+from teleop_force.interchange_csv import Recording
+from teleop_force.lowpass import lowpass_batch
+from teleop_force.regressor import BaseParameters, RigidBodyRegressor
+from teleop_force.robot import RobotDescription
+
+
+@dataclass(frozen=True)
+class WaveletOptions:
+    """How the wavelet-network friction is trained (``--friction wn``)."""
+
+    method: str = "adaptive"
+    passes: int = 1
+
+    def __post_init__(self) -> None:
+        if self.method not in ("adaptive", "batch"):
+            raise ConfigurationError(f"wavelet training method must be adaptive or batch, got {self.method!r}")
+        if self.passes < 1:
+            raise ConfigurationError("passes must be >= 1")
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedRecording:
+    """A recording with its filtered signals."""
+
+    recording: Recording
+    signals: FilteredSignals
+
+
+@dataclass(frozen=True, eq=False)
+class FitReport:
+    """What identification produced besides the model."""
+
+    rigid: Identification
+    friction_relative_rms: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def prepare(
+    recordings: Sequence[Recording],
+    description: RobotDescription,
+    config: FilterConfig,
+    base: BaseParameters | None = None,
+) -> tuple[list[PreparedRecording], BaseParameters | None]:
+    """Filter every recording with the rigid-body regressor of ``description``."""
+    regressor = RigidBodyRegressor(description) if description.has_rigid_body else None
+    if regressor is not None and base is None:
+        base = regressor.find_base_parameters()
+    prepared = []
+    for rec in recordings:
+        if rec.q_rad.shape[1] != description.n_joints:
+            raise DataError(
+                f"has {rec.q_rad.shape[1]} joints, robot {description.name!r} has {description.n_joints}",
+                path=rec.source,
+            )
+        signals = filter_signals(rec.t_s, rec.q_rad, rec.tau_nm, regressor, base, config)
+        prepared.append(PreparedRecording(rec, signals))
+    return prepared, base
+
+
+def _stage_one_friction(kind: str, description: RobotDescription) -> FrictionModel:
+    if kind == "cv":
+        return CoulombViscous(description.n_joints)
+    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+
+
+def _friction_columns(friction: FrictionModel, signals: FilteredSignals) -> list[np.ndarray]:
+    """Per joint, the filtered friction basis (N x p_j)."""
+    return [
+        lowpass_batch(friction.basis(j, signals.qd_rad_s), signals.t_s, signals.config.cutoff_hz)
+        for j in range(friction.n_joints)
+    ]
+
+
+def _stack_regressor(
+    prepared: Sequence[PreparedRecording], friction: FrictionModel, with_offsets: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint regressor ``(N, n, r + p_f [+ n])`` and filtered torque over the valid samples."""
+    blocks, torques = [], []
+    counts = friction.parameter_counts()
+    n = friction.n_joints
+    for item in prepared:
+        s = item.signals
+        rigid = s.rigid_regressor[s.valid]
+        cols = _friction_columns(friction, s)
+        m = int(s.valid.sum())
+        fric = np.zeros((m, n, int(sum(counts))))
+        for j in range(n):
+            fric[:, j, friction.joint_slice(j)] = cols[j][s.valid]
+        parts = [rigid, fric]
+        if with_offsets:
+            parts.append(np.broadcast_to(np.eye(n), (m, n, n)))
+        blocks.append(np.concatenate(parts, axis=2))
+        torques.append(s.tau_lowpassed_nm[s.valid])
+    return np.concatenate(blocks), np.concatenate(torques)
+
+
+def identify_model(
+    recordings: Sequence[Recording],
+    description: RobotDescription,
+    friction_kind: str = "wn",
+    config: FilterConfig | None = None,
+    wavelet: WaveletOptions | None = None,
+) -> tuple[DynamicModel, FitReport]:
+    """Identify rigid-body parameters and friction from recordings."""
+    if friction_kind not in FRICTION_KINDS:
+        raise ConfigurationError(f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}")
+    config = config or FilterConfig()
+    prepared, base = prepare(recordings, description, config)
+    stage_one = _stage_one_friction("cv" if friction_kind == "cv" else "coupled-cv", description)
+    with_offsets = not description.has_rigid_body
+    regressor, torque = _stack_regressor(prepared, stage_one, with_offsets)
+    names = list(base.names() if base is not None else [])
+    for j in range(description.n_joints):
+        names += stage_one.parameter_names(j)
+    if with_offsets:
+        names += [f"offset_{j + 1}" for j in range(description.n_joints)]
+    rigid_fit = least_squares(regressor, torque, names)
+    r = 0 if base is None else base.count
+    p_f = int(sum(stage_one.parameter_counts()))
+    base_values = rigid_fit.parameters[:r]
+    base_std = rigid_fit.standard_deviations[:r]
+    stage_one.parameters = rigid_fit.parameters[r : r + p_f].copy()
+    offsets = rigid_fit.parameters[r + p_f :] if with_offsets else np.zeros(description.n_joints)
+    details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
+    friction: FrictionModel = stage_one
+    if friction_kind == "wn":
+        from teleop_force.wavelet_training import train_wavelet_network
+
+        assert isinstance(stage_one, CoupledCoulombViscous)
+        friction, wn_details = train_wavelet_network(
+            prepared, description, base_values, offsets, stage_one, wavelet or WaveletOptions()
+        )
+        details.update(wn_details)
+    model = DynamicModel(
+        robot=description.name,
+        n_joints=description.n_joints,
+        filter_config=config,
+        base=base,
+        base_values=base_values,
+        base_std=base_std,
+        friction=friction,
+        offsets_nm=np.asarray(offsets, dtype=float),
+        notes={
+            "sources": [str(p.recording.source) for p in prepared],
+            "training_relative_rms": rigid_fit.relative_rms.tolist(),
+            "condition_number": rigid_fit.condition_number,
+        },
+    )
+    training = evaluate_prepared(model, prepared)
+    return model, FitReport(rigid_fit, training["relative_rms"], details)
+
+
+def evaluate_prepared(model: DynamicModel, prepared: Sequence[PreparedRecording]) -> dict[str, Any]:
+    """Relative RMS per joint of the reverse torque computation, adaptation off."""
+    measured, estimated, qd = [], [], []
+    for item in prepared:
+        s = item.signals
+        tau_hat = model.predict_filtered_torque(s, item.recording.tau_nm)
+        measured.append(s.tau_lowpassed_nm[s.valid])
+        estimated.append(tau_hat[s.valid])
+        qd.append(s.qd_rad_s[s.valid])
+    m, e, v = np.concatenate(measured), np.concatenate(estimated), np.concatenate(qd)
+    coverage = model.friction.coverage_weight(v)
+    return {
+        "relative_rms": relative_rms(m, e),
+        "samples": int(m.shape[0]),
+        "coverage": (coverage >= 0.5).mean(axis=0),
+        "measured": m,
+        "estimated": e,
+    }
+
+
+def evaluate_model(model: DynamicModel, recordings: Sequence[Recording]) -> dict[str, Any]:
+    """Evaluate ``model`` on recordings (the ``evaluate`` command)."""
+    prepared, _ = prepare(recordings, model.description(), model.filter_config, model.base)
+    return evaluate_prepared(model, prepared)

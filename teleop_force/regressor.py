@@ -1,0 +1,203 @@
+"""The rigid-body regressor in motor coordinates and the base parameters found by QR.
+
+Full parameters, in order: 10 per link (pinocchio's ``m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz,
+Izz``), one rotor inertia per motor, one stiffness per spring. Three regressors share them:
+
+- :meth:`RigidBodyRegressor.standard`: ``Y(q, qd, qdd) pi = M qdd + C qd + N + tau_spring``;
+- :meth:`RigidBodyRegressor.momentum`: ``Y_p(q, qd) pi = M(q) qd``, the generalized momentum;
+- :meth:`RigidBodyRegressor.coriolis_gravity`: ``Y_w(q, qd) pi = -C^T qd + N + tau_spring``.
+
+Since ``d/dt (M qd) = M qdd + Mdot qd`` and ``Mdot = C + C^T``, the torque is
+``d/dt p - C^T qd + N + tau_spring``: the momentum form needs no acceleration once filtered.
+``Mdot qd`` is the directional derivative of ``M(q) qd`` along ``qd`` (central difference).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg
+
+from teleop_force.errors import ModelError
+from teleop_force.robot import LINK_PARAMETER_NAMES, RobotDescription
+
+_DIRECTIONAL_STEP = 1e-5
+
+
+def full_parameter_names(description: RobotDescription) -> list[str]:
+    """Names of the full parameter vector of ``description``."""
+    names: list[str] = []
+    if description.model is not None:
+        for j in range(1, description.model.njoints):
+            names += [f"{p}_{j}" for p in LINK_PARAMETER_NAMES]
+    names += [f"Ia_{i + 1}" for i in range(description.n_joints)]
+    names += [f"k_{s.joint + 1}" for s in description.springs]
+    return names
+
+
+def full_parameters(description: RobotDescription, spring_stiffness: np.ndarray) -> np.ndarray:
+    """Full parameter vector of a description (its model's inertias) and given stiffnesses."""
+    return np.concatenate(
+        (
+            description.link_parameters(),
+            description.rotor_inertia_kgm2,
+            np.asarray(spring_stiffness, dtype=float).reshape(-1),
+        )
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class BaseParameters:
+    """The identifiable combinations of the full parameters, ``beta = pi_B + K pi_D``.
+
+    Attributes:
+        full_names: Names of the full parameters.
+        independent: Indices of the full parameters kept as base parameters (sorted).
+        dependent: Indices of the others.
+        dependency: ``K``, with ``Y[:, dependent] = Y[:, independent] @ K``.
+    """
+
+    full_names: tuple[str, ...]
+    independent: np.ndarray
+    dependent: np.ndarray
+    dependency: np.ndarray
+
+    def __post_init__(self) -> None:
+        n_full = len(self.full_names)
+        if self.independent.size + self.dependent.size != n_full:
+            raise ModelError("base parameters: index sets do not partition the parameters")
+        if self.dependency.shape != (self.independent.size, self.dependent.size):
+            raise ModelError("base parameters: dependency matrix has the wrong shape")
+
+    @property
+    def count(self) -> int:
+        """Number of base parameters."""
+        return int(self.independent.size)
+
+    def names(self) -> list[str]:
+        """Each base parameter as an expression of full parameters, e.g. ``Iyy_1 + Ia_1``."""
+        out = []
+        for row, i in enumerate(self.independent):
+            terms = [self.full_names[i]]
+            for col, d in enumerate(self.dependent):
+                k = self.dependency[row, col]
+                if abs(k) > 1e-9:
+                    coef = "" if abs(k - 1) < 1e-9 else f"{k:.4g}*"
+                    terms.append(f"{coef}{self.full_names[d]}")
+            out.append(" + ".join(terms).replace("+ -", "- "))
+        return out
+
+    def project(self, full: np.ndarray) -> np.ndarray:
+        """Base parameters of a full parameter vector."""
+        return full[self.independent] + self.dependency @ full[self.dependent]
+
+    def representative(self, base: np.ndarray, nominal_full: np.ndarray) -> np.ndarray:
+        """A full parameter vector with these base parameters, equal to ``nominal_full`` on the
+        dependent parameters (so masses stay non-zero)."""
+        full = np.array(nominal_full, dtype=float)
+        full[self.independent] = base - self.dependency @ full[self.dependent]
+        return full
+
+    def to_dict(self) -> dict[str, object]:
+        """Serialise."""
+        return {
+            "full_names": list(self.full_names),
+            "independent": self.independent.tolist(),
+            "dependent": self.dependent.tolist(),
+            "dependency": self.dependency.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, object]) -> BaseParameters:
+        """Deserialise."""
+        independent = np.asarray(data["independent"], dtype=int)
+        dependent = np.asarray(data["dependent"], dtype=int)
+        dependency = np.asarray(data["dependency"], dtype=float).reshape(
+            independent.size, dependent.size
+        )
+        return cls(tuple(data["full_names"]), independent, dependent, dependency)  # type: ignore[arg-type]
+
+
+class RigidBodyRegressor:
+    """Regressors of a robot description in motor coordinates (one instance per thread)."""
+
+    def __init__(self, description: RobotDescription) -> None:
+        """Prepare pinocchio models with and without gravity."""
+        if description.model is None:
+            raise ModelError(f"{description.name}: no rigid-body model for a regressor")
+        self.description = description
+        self.n = description.n_joints
+        self.coupling = description.coupling
+        self.model = description.model
+        self.data = self.model.createData()
+        self.model_no_gravity = self.model.copy()
+        self.model_no_gravity.gravity = pin.Motion.Zero()
+        self.data_no_gravity = self.model_no_gravity.createData()
+        self.n_link_parameters = 10 * description.n_links
+        self.n_parameters = self.n_link_parameters + self.n + len(description.springs)
+        self._spring_joints = [s.joint for s in description.springs]
+        self._spring_rest = [s.rest_angle_rad for s in description.springs]
+
+    def _links(self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        t = self.coupling
+        y = pin.computeJointTorqueRegressor(model, data, t @ q, t @ v, t @ a)
+        return t.T @ y
+
+    def _assemble(self, links: np.ndarray, rotor_diag: np.ndarray, q: np.ndarray | None) -> np.ndarray:
+        y = np.zeros((self.n, self.n_parameters))
+        y[:, : self.n_link_parameters] = links
+        y[:, self.n_link_parameters : self.n_link_parameters + self.n] = np.diag(rotor_diag)
+        if q is not None:
+            for col, (j, rest) in enumerate(zip(self._spring_joints, self._spring_rest, strict=True)):
+                y[j, self.n_link_parameters + self.n + col] = q[j] - rest
+        return y
+
+    def standard(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """``Y(q, qd, qdd)``: torque = ``Y @ pi`` (n x P)."""
+        return self._assemble(self._links(self.model, self.data, q, qd, qdd), qdd, q)
+
+    def momentum(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """``Y_p(q, qd)``: ``M(q) qd = Y_p @ pi`` (n x P)."""
+        zero = np.zeros(self.n)
+        links = self._links(self.model_no_gravity, self.data_no_gravity, q, zero, qd)
+        return self._assemble(links, qd, None)
+
+    def coriolis_gravity(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """``Y_w(q, qd)``: ``-C^T qd + N + tau_spring = Y_w @ pi`` (n x P)."""
+        zero = np.zeros(self.n)
+        speed = float(np.linalg.norm(qd))
+        c_qd_plus_gravity = self._links(self.model, self.data, q, qd, zero)
+        if speed > 0.0:
+            h = _DIRECTIONAL_STEP / speed
+            ahead = self._links(self.model_no_gravity, self.data_no_gravity, q + h * qd, zero, qd)
+            behind = self._links(self.model_no_gravity, self.data_no_gravity, q - h * qd, zero, qd)
+            mdot_qd = (ahead - behind) / (2.0 * h)
+            links = c_qd_plus_gravity - mdot_qd
+        else:
+            links = c_qd_plus_gravity
+        return self._assemble(links, zero, q)
+
+    def find_base_parameters(self, n_states: int = 200, seed: int = 0) -> BaseParameters:
+        """Find the base parameters numerically: QR with pivoting of ``Y`` on random states."""
+        rng = np.random.default_rng(seed)
+        desc = self.description
+        rows = []
+        for _ in range(n_states):
+            q = rng.uniform(desc.q_min_rad, desc.q_max_rad)
+            rows.append(self.standard(q, rng.normal(size=self.n), rng.normal(size=self.n)))
+        w = np.vstack(rows)
+        scale = np.linalg.norm(w, axis=0)
+        scale[scale == 0.0] = 1.0
+        _, r, perm = scipy.linalg.qr(w / scale, mode="economic", pivoting=True)
+        diag = np.abs(np.diag(r))
+        rank = int(np.sum(diag > 1e-8 * diag[0]))
+        independent = np.sort(perm[:rank])
+        dependent = np.sort(perm[rank:])
+        if dependent.size:
+            k, *_ = np.linalg.lstsq(w[:, independent], w[:, dependent], rcond=None)
+        else:
+            k = np.zeros((rank, 0))
+        k[np.abs(k) < 1e-10] = 0.0
+        return BaseParameters(tuple(full_parameter_names(desc)), independent, dependent, k)
