@@ -89,6 +89,30 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_residual(args: argparse.Namespace) -> int:
+    from teleop_force.residual import ResidualOptions, trace_residual
+    from teleop_force.residual_report import write_residual_report
+    from teleop_force.robots import resolve_robot
+
+    recordings = _load_recordings(args.data)
+    description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
+    report = trace_residual(recordings, description, ResidualOptions(friction=args.friction))
+    if args.output:
+        path = write_residual_report(report, Path(args.output), list(description.joint_names))
+        _log(f"report written to {path}")
+    if args.json:
+        print(json.dumps(report.to_json()))
+    else:
+        for j in range(report.before.size):
+            print(f"joint {j + 1}: held-out relative RMS {report.before[j]:.2%} -> {report.after[j]:.2%}")
+        for effect in report.effects:
+            e = effect.to_json()
+            print(f"  + {e['description']}: {e['kind']}, explains {e['explained']:.1%} of joint {e['joint']}'s residual")
+        if not report.effects:
+            print("no significant effect found")
+    return EXIT_OK
+
+
 def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
     def run(args: argparse.Namespace) -> int:
         _log(f"teleop-force {name}: not implemented yet")
@@ -123,7 +147,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(run=_cmd_estimate)
 
-    for name in ("demo", "residual", "replay", "bench"):
+    p = sub.add_parser("residual", help="find, trace and add what the model lacks; report before/after")
+    p.add_argument("data", nargs="+")
+    p.add_argument("--robot", default="omni")
+    p.add_argument("--friction", choices=("cv", "coupled-cv"), default="coupled-cv",
+                   help="friction of the model the residual is taken from")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
+    p.set_defaults(run=_cmd_residual)
+
+    for name in ("demo", "replay", "bench"):
         p = sub.add_parser(name)
         p.set_defaults(run=_not_yet(name))
     return parser

@@ -1,57 +1,200 @@
-"""Effects the residual loop adds to a model: torques linear in their parameters.
+"""Effects the residual loop adds to a model: torques on one joint, linear in their parameters.
 
-Each :class:`FoundEffect` acts on one joint with a fixed basis of named features (joint
-angles, their differences, velocities, time, motor torque...) and identified coefficients.
+An effect is a :class:`BasisSpec` (which variable, which fixed shape, which modulation) and
+its coefficients. Variables are named as in CONTRACT.md: ``q2`` (angle), ``q2-q3`` (angle
+difference), ``qd1`` (velocity), ``tau3`` (motor torque), ``t`` (time since start).
 """
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+import re
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from teleop_force.errors import ModelError
 
+SHAPES = ("constant", "linear", "smooth", "periodic", "abs", "stribeck")
+MODULATIONS = ("none", "sign", "positive")
+_VARIABLE = re.compile(r"^(t|q(\d+)-q(\d+)|q(\d+)|qd(\d+)|tau(\d+))$")
 
-class FoundEffect(ABC):
-    """A torque on one joint, linear in ``coefficients``."""
+
+def variable_values(name: str, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Values of the named variable at every sample (``t`` is time since the first sample)."""
+    match = _VARIABLE.match(name)
+    if match is None:
+        raise ModelError(f"unknown effect variable {name!r}")
+    n = q.shape[1]
+    indices = [int(g) - 1 for g in match.groups()[1:] if g is not None]
+    if any(not 0 <= i < n for i in indices):
+        raise ModelError(f"effect variable {name!r} names a joint outside 1..{n}")
+    if name == "t":
+        return np.asarray(t_s, dtype=float) - float(t_s[0])
+    if match.group(2) is not None:
+        return q[:, indices[0]] - q[:, indices[1]]
+    if match.group(4) is not None:
+        return q[:, indices[0]]
+    if match.group(5) is not None:
+        return qd[:, indices[0]]
+    return tau[:, indices[0]]
+
+
+@dataclass(frozen=True)
+class BasisSpec:
+    """How an effect's basis is computed.
+
+    Attributes:
+        joint: Joint the torque acts on (0-based).
+        variable: Variable the effect depends on (``q2``, ``q2-q3``, ``qd1``, ``tau3``, ``t``).
+        shape: ``constant``; ``linear`` (x); ``smooth`` (Gaussian bumps over ``[lo, hi]``);
+            ``periodic`` (sin/cos of ``k * frequency * x``, k = 1..harmonics); ``abs`` (|x|);
+            ``stribeck`` (``exp(-(x / v)^2)`` for each scale v).
+        modulation: ``none``; ``sign`` (times ``sgn(qd_joint)``); ``positive`` (times
+            ``[qd_joint > 0]``).
+        lo, hi: Range of ``smooth`` bumps.
+        count: Number of bumps (``smooth``).
+        frequency: Base spatial frequency [rad/unit of x] (``periodic``).
+        harmonics: Harmonics (``periodic``).
+        scales: Velocity scales (``stribeck``).
+    """
 
     joint: int
-    coefficients: np.ndarray
+    variable: str
+    shape: str
+    modulation: str = "none"
+    lo: float = 0.0
+    hi: float = 1.0
+    count: int = 0
+    frequency: float = 0.0
+    harmonics: int = 0
+    scales: tuple[float, ...] = field(default_factory=tuple)
 
-    @abstractmethod
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise ModelError(f"unknown effect shape {self.shape!r}")
+        if self.modulation not in MODULATIONS:
+            raise ModelError(f"unknown effect modulation {self.modulation!r}")
+        if self.shape != "constant" and _VARIABLE.match(self.variable) is None:
+            raise ModelError(f"unknown effect variable {self.variable!r}")
+        if self.shape == "smooth" and (self.count < 2 or not self.hi > self.lo):
+            raise ModelError("smooth effect needs count >= 2 and hi > lo")
+        if self.shape == "periodic" and (self.harmonics < 1 or not self.frequency > 0):
+            raise ModelError("periodic effect needs harmonics >= 1 and frequency > 0")
+        if self.shape == "stribeck" and (not self.scales or min(self.scales) <= 0):
+            raise ModelError("stribeck effect needs positive velocity scales")
+        object.__setattr__(self, "scales", tuple(float(s) for s in self.scales))
+
+    @property
+    def size(self) -> int:
+        """Number of basis functions."""
+        return {
+            "constant": 1,
+            "linear": 1,
+            "abs": 1,
+            "smooth": self.count,
+            "periodic": 2 * self.harmonics,
+            "stribeck": len(self.scales),
+        }[self.shape]
+
+    @property
+    def kind(self) -> str:
+        """Short name of the effect family, as reported by ``residual``."""
+        var = self.variable
+        if self.shape == "constant":
+            return "direction-dependent offset" if self.modulation != "none" else "offset"
+        if self.shape == "stribeck":
+            return "stribeck friction"
+        if var == "t":
+            return "friction drift" if self.modulation != "none" else "torque drift"
+        if var.startswith("tau"):
+            return "load-dependent friction"
+        if var.startswith("qd"):
+            return "cross-joint coupling"
+        if self.modulation != "none":
+            return "position-dependent friction"
+        if self.shape == "periodic":
+            return "position-periodic torque"
+        return "position-dependent torque"
+
+    def depends_on(self) -> list[str]:
+        """Variables the effect depends on (the ``depends_on`` field of the report)."""
+        names: list[str] = []
+        if self.shape != "constant":
+            names += self.variable.split("-") if "-" in self.variable else [self.variable]
+        if self.modulation != "none":
+            names.append(f"qd{self.joint + 1}")
+        return list(dict.fromkeys(names))
+
+    def describe(self) -> str:
+        """One readable line."""
+        var = "1" if self.shape == "constant" else self.variable
+        mod = {"none": "", "sign": f" x sgn(qd{self.joint + 1})", "positive": f" x [qd{self.joint + 1} > 0]"}
+        return f"joint {self.joint + 1}: {self.shape}({var}){mod[self.modulation]}"
+
     def basis(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Basis functions at every sample (N x p)."""
+        """Basis functions at every sample (N x size)."""
+        n_samples = q.shape[0]
+        if self.shape == "constant":
+            phi = np.ones((n_samples, 1))
+        else:
+            x = variable_values(self.variable, t_s, q, qd, tau)
+            if self.shape == "linear":
+                phi = x[:, None]
+            elif self.shape == "abs":
+                phi = np.abs(x)[:, None]
+            elif self.shape == "smooth":
+                centres = np.linspace(self.lo, self.hi, self.count)
+                width = (self.hi - self.lo) / (self.count - 1)
+                phi = np.exp(-0.5 * ((x[:, None] - centres[None, :]) / width) ** 2)
+            elif self.shape == "periodic":
+                k = np.arange(1, self.harmonics + 1) * self.frequency
+                phase = x[:, None] * k[None, :]
+                phi = np.concatenate((np.sin(phase), np.cos(phase)), axis=1)
+            else:
+                scales = np.asarray(self.scales)
+                phi = np.exp(-((x[:, None] / scales[None, :]) ** 2))
+        if self.modulation == "sign":
+            phi = phi * np.sign(qd[:, self.joint])[:, None]
+        elif self.modulation == "positive":
+            phi = phi * (qd[:, self.joint] > 0)[:, None]
+        return phi
 
-    @abstractmethod
-    def to_dict(self) -> dict[str, Any]:
-        """Serialise (``kind`` included)."""
+
+class FoundEffect:
+    """An effect with identified coefficients: ``tau_joint = basis @ coefficients``."""
+
+    def __init__(self, spec: BasisSpec, coefficients: np.ndarray, explained: float = 0.0) -> None:
+        """Bind a basis to its coefficients (``explained``: held-out variance fraction)."""
+        coefficients = np.asarray(coefficients, dtype=float).reshape(-1)
+        if coefficients.shape != (spec.size,):
+            raise ModelError(f"effect {spec.describe()} needs {spec.size} coefficients")
+        self.spec = spec
+        self.coefficients = coefficients
+        self.explained = float(explained)
+
+    @property
+    def joint(self) -> int:
+        """Joint the effect acts on (0-based)."""
+        return self.spec.joint
 
     def torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Torque of this effect on all joints (N x n), non-zero on ``joint`` only."""
+        """Torque on all joints (N x n), non-zero on :attr:`joint` only."""
         out = np.zeros_like(np.asarray(q, dtype=float))
-        out[:, self.joint] = self.basis(t_s, q, qd, tau) @ self.coefficients
+        out[:, self.spec.joint] = self.spec.basis(t_s, q, qd, tau) @ self.coefficients
         return out
 
-
-_REGISTRY: dict[str, type[FoundEffect]] = {}
-
-
-def register_effect(kind: str):  # type: ignore[no-untyped-def]
-    """Class decorator registering an effect class under ``kind`` for :func:`effect_from_dict`."""
-
-    def wrap(cls: type[FoundEffect]) -> type[FoundEffect]:
-        _REGISTRY[kind] = cls
-        return cls
-
-    return wrap
+    def to_dict(self) -> dict[str, Any]:
+        """Serialise."""
+        spec = asdict(self.spec)
+        spec["scales"] = list(self.spec.scales)
+        return {"kind": "basis", "spec": spec, "coefficients": self.coefficients.tolist(), "explained": self.explained}
 
 
 def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
-    """Rebuild an effect from its ``to_dict`` form."""
-    kind = data.get("kind") if isinstance(data, dict) else None
-    cls = _REGISTRY.get(str(kind))
-    if cls is None:
-        raise ModelError(f"unknown effect kind {kind!r}")
-    return cls.from_dict(data)  # type: ignore[attr-defined,no-any-return]
+    """Rebuild an effect from :meth:`FoundEffect.to_dict`."""
+    if not isinstance(data, dict) or data.get("kind") != "basis":
+        raise ModelError("effect entry is not a basis effect")
+    spec = dict(data["spec"])
+    spec["scales"] = tuple(spec.get("scales", ()))
+    return FoundEffect(BasisSpec(**spec), np.asarray(data["coefficients"], dtype=float), float(data.get("explained", 0.0)))

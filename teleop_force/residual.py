@@ -1,0 +1,401 @@
+"""Close the loop: find the residual, trace it to the effect the model lacks, add it, report.
+
+Every decision is made on held-out data: the valid samples of each recording are cut into
+``folds * blocks_per_fold`` contiguous time blocks, dealt to ``folds`` folds in turn (so a
+sweep's every region is seen in training and in held-out data); a candidate effect is scored by blocked cross-validation
+(fit on the other blocks, error on the held-out block), computed from per-block normal
+equations so hundreds of candidates cost little. An effect is added only when it lowers the
+joint's held-out RMS by ``min_rms_gain`` (relative) and helps in most blocks; the search then
+repeats until nothing significant is left.
+
+Candidates are linear in their parameters (:mod:`teleop_force.effects`): smooth or periodic
+functions of any joint angle or angle difference (optionally direction-modulated: position
+dependent friction), of other joints' velocities (coupling), of the motor torque (load
+dependent friction), of time (drift), Stribeck-like low-speed shapes and offsets.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from teleop_force.dynamic_model import DynamicModel
+from teleop_force.effects import BasisSpec, FoundEffect, variable_values
+from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.filtered_regressor import FilterConfig
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.identification import least_squares
+from teleop_force.interchange_csv import Recording
+from teleop_force.lowpass import lowpass_batch
+from teleop_force.model_fitting import PreparedRecording, prepare
+from teleop_force.robot import RobotDescription
+
+
+@dataclass(frozen=True)
+class ResidualOptions:
+    """Knobs of the residual loop."""
+
+    folds: int = 5
+    blocks_per_fold: int = 4
+    min_rms_gain: float = 0.03
+    min_fold_wins: float = 0.8
+    max_effects: int = 6
+    decimate: int = 5
+    smooth_counts: tuple[int, ...] = (6, 12)
+    modulated_counts: tuple[int, ...] = (4, 6, 8)
+    harmonics: int = 2
+    friction: str = "coupled-cv"
+    ridge: float = 1e-4
+
+    def __post_init__(self) -> None:
+        if self.folds < 3:
+            raise ConfigurationError("folds must be >= 3")
+        if not 0 < self.min_rms_gain < 1:
+            raise ConfigurationError("min_rms_gain must be in (0, 1)")
+        if self.friction not in ("cv", "coupled-cv"):
+            raise ConfigurationError("residual friction must be cv or coupled-cv")
+        if self.decimate < 1:
+            raise ConfigurationError("decimate must be >= 1")
+
+
+@dataclass(frozen=True)
+class TracedEffect:
+    """An effect the loop added, with its held-out figures."""
+
+    spec: BasisSpec
+    explained: float
+    joint_rms_before: float
+    joint_rms_after: float
+
+    def to_json(self) -> dict[str, Any]:
+        """The CONTRACT.md form."""
+        return {
+            "joint": self.spec.joint + 1,
+            "depends_on": self.spec.depends_on(),
+            "kind": self.spec.kind,
+            "explained": round(float(self.explained), 6),
+            "description": self.spec.describe(),
+            "joint_rms_before": float(self.joint_rms_before),
+            "joint_rms_after": float(self.joint_rms_after),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualReport:
+    """Result of :func:`trace_residual`."""
+
+    before: np.ndarray
+    after: np.ndarray
+    effects: tuple[TracedEffect, ...]
+    model: DynamicModel
+    samples: int
+    history: tuple[dict[str, Any], ...] = field(default_factory=tuple)
+    plots: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object of ``teleop-force residual --json``."""
+        return {
+            "before": [float(x) for x in self.before],
+            "after": [float(x) for x in self.after],
+            "effects": [e.to_json() for e in self.effects],
+            "samples": self.samples,
+            "held_out": "blocked cross-validation over contiguous time blocks",
+        }
+
+
+class _Design:
+    """Held-out scoring of candidate columns for one joint from per-fold normal equations."""
+
+    def __init__(self, base: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float) -> None:
+        self.base = base
+        self.y = y
+        self.folds = folds
+        self.n_folds = n_folds
+        self.ridge = ridge
+        self._masks = [folds == f for f in range(n_folds)]
+        self.gram = [base[m].T @ base[m] for m in self._masks]
+        self.cross = [base[m].T @ y[m] for m in self._masks]
+        self.yy = np.array([float(y[m] @ y[m]) for m in self._masks])
+
+    def add(self, columns: np.ndarray) -> None:
+        """Make ``columns`` part of the base."""
+        self.__init__(np.concatenate((self.base, columns), axis=1), self.y, self.folds, self.n_folds, self.ridge)  # type: ignore[misc]
+
+    def _score(self, grams: list[np.ndarray], crosses: list[np.ndarray]) -> np.ndarray:
+        g_all = sum(grams)
+        c_all = sum(crosses)
+        errors = np.empty(self.n_folds)
+        for f in range(self.n_folds):
+            g = g_all - grams[f]
+            c = c_all - crosses[f]
+            scale = np.sqrt(np.clip(np.diag(g), 1e-300, None))
+            gs = g / np.outer(scale, scale) + self.ridge * np.eye(len(scale))
+            theta = np.linalg.lstsq(gs, c / scale, rcond=None)[0] / scale
+            errors[f] = self.yy[f] - 2 * theta @ crosses[f] + theta @ grams[f] @ theta
+        return np.clip(errors, 0.0, None)
+
+    def held_out_errors(self, candidate: np.ndarray | None = None) -> np.ndarray:
+        """Held-out squared error per fold, with ``candidate`` columns added if given."""
+        if candidate is None:
+            return self._score(self.gram, self.cross)
+        grams, crosses = [], []
+        for f, m in enumerate(self._masks):
+            b, c = self.base[m], candidate[m]
+            bc = b.T @ c
+            grams.append(np.block([[self.gram[f], bc], [bc.T, c.T @ c]]))
+            crosses.append(np.concatenate((self.cross[f], c.T @ self.y[m])))
+        return self._score(grams, crosses)
+
+    def relative_rms(self, errors: np.ndarray) -> float:
+        """Held-out relative RMS from per-fold squared errors."""
+        return float(np.sqrt(errors.sum() / max(self.yy.sum(), 1e-300)))
+
+
+@dataclass(frozen=True, eq=False)
+class _Data:
+    """Stacked, decimated valid samples of all recordings."""
+
+    prepared: list[PreparedRecording]
+    rows: list[np.ndarray]
+    folds: np.ndarray
+    raw: dict[str, np.ndarray]
+
+
+def _select_rows(prepared: Sequence[PreparedRecording], options: ResidualOptions) -> _Data:
+    rows, fold_ids = [], []
+    t, q, qd, tau = [], [], [], []
+    for item in prepared:
+        s = item.signals
+        idx = np.flatnonzero(s.valid)[:: options.decimate]
+        if idx.size < options.folds * 10:
+            raise DataError("recording too short for held-out blocks", path=item.recording.source)
+        rows.append(idx)
+        n_blocks = options.folds * options.blocks_per_fold
+        block = (np.arange(idx.size) * n_blocks) // idx.size
+        fold_ids.append(block % options.folds)
+        t.append(s.t_s)
+        q.append(s.q_rad)
+        qd.append(s.qd_rad_s)
+        tau.append(item.recording.tau_nm)
+    raw = {"t": np.concatenate(t), "q": np.concatenate(q), "qd": np.concatenate(qd), "tau": np.concatenate(tau)}
+    return _Data(list(prepared), rows, np.concatenate(fold_ids), raw)
+
+
+def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
+    """The candidate's basis, low-pass filtered per recording, at the selected rows."""
+    out = []
+    for item, idx in zip(data.prepared, data.rows, strict=True):
+        s = item.signals
+        phi = spec.basis(s.t_s, s.q_rad, s.qd_rad_s, item.recording.tau_nm)
+        out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
+    return np.concatenate(out)
+
+
+def _stage_one(kind: str, description: RobotDescription) -> FrictionModel:
+    if kind == "cv":
+        return CoulombViscous(description.n_joints)
+    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+
+
+def _joint_base(data: _Data, friction: FrictionModel, joint: int, offsets: bool) -> tuple[np.ndarray, np.ndarray]:
+    cols, ys = [], []
+    for item, idx in zip(data.prepared, data.rows, strict=True):
+        s = item.signals
+        parts = [s.rigid_regressor[idx, joint, :]]
+        phi = lowpass_batch(friction.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
+        parts.append(phi[idx])
+        if offsets:
+            parts.append(np.ones((idx.size, 1)))
+        cols.append(np.concatenate(parts, axis=1))
+        ys.append(s.tau_lowpassed_nm[idx, joint])
+    return np.concatenate(cols), np.concatenate(ys)
+
+
+def _candidates(data: _Data, joint: int, n: int, residual: np.ndarray, options: ResidualOptions, has_offsets: bool) -> list[BasisSpec]:
+    """Candidate effects for one joint."""
+    raw = data.raw
+    specs: list[BasisSpec] = []
+    names = [f"q{i + 1}" for i in range(n)] + [f"q{a + 1}-q{b + 1}" for a in range(n) for b in range(a + 1, n)]
+    selected = np.concatenate([idx + offset for idx, offset in zip(data.rows, np.cumsum([0] + [p.signals.n_samples for p in data.prepared[:-1]]), strict=True)])
+    for name in names:
+        x = variable_values(name, raw["t"], raw["q"], raw["qd"], raw["tau"])
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        if hi - lo < 1e-3:
+            continue
+        for count in options.smooth_counts:
+            specs.append(BasisSpec(joint, name, "smooth", "none", float(lo), float(hi), count))
+        for count in options.modulated_counts:
+            specs.append(BasisSpec(joint, name, "smooth", "sign", float(lo), float(hi), count))
+        frequency = _dominant_frequency(x[selected], residual, float(hi - lo))
+        if frequency is not None:
+            specs.append(BasisSpec(joint, name, "periodic", "none", frequency=frequency, harmonics=options.harmonics))
+    for k in range(n):
+        if k == joint:
+            continue
+        x = raw["qd"][:, k]
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        if hi - lo > 1e-3:
+            specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "none", float(lo), float(hi), 6))
+    if not has_offsets:
+        # The motor torque is the fitted quantity: as a variable it is only independent of the
+        # residual when rigid-body terms carry most of it (robots with a model).
+        specs.append(BasisSpec(joint, f"tau{joint + 1}", "abs", "sign"))
+    specs.append(BasisSpec(joint, "t", "linear", "none"))
+    specs.append(BasisSpec(joint, "t", "linear", "sign"))
+    specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
+    if not has_offsets:
+        specs.append(BasisSpec(joint, "t", "constant", "none"))
+    specs.append(BasisSpec(joint, "t", "constant", "positive"))
+    return specs
+
+
+def _dominant_frequency(x: np.ndarray, residual: np.ndarray, span: float) -> float | None:
+    """Spatial frequency of the strongest periodic component of ``residual`` over ``x``."""
+    if span <= 0:
+        return None
+    low = 2.0 * np.pi * 2.0 / span
+    grid = np.linspace(max(low, 2.0), 120.0, 600)
+    if grid.size == 0:
+        return None
+    r = residual - residual.mean()
+    phase = np.outer(x, grid)
+    power = (r @ np.cos(phase)) ** 2 + (r @ np.sin(phase)) ** 2
+    return float(grid[int(np.argmax(power))])
+
+
+def trace_residual(
+    recordings: Sequence[Recording],
+    description: RobotDescription,
+    options: ResidualOptions | None = None,
+    config: FilterConfig | None = None,
+) -> ResidualReport:
+    """Fit, find what the model lacks on held-out data, add it, refit, report before and after."""
+    options = options or ResidualOptions()
+    config = config or FilterConfig()
+    prepared, base = prepare(recordings, description, config)
+    data = _select_rows(prepared, options)
+    n = description.n_joints
+    offsets = not description.has_rigid_body
+    friction = _stage_one(options.friction, description)
+    designs = []
+    for j in range(n):
+        columns, y = _joint_base(data, friction, j, offsets)
+        designs.append(_Design(columns, y, data.folds, options.folds, options.ridge))
+    before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
+    current = before.copy()
+    accepted: list[TracedEffect] = []
+    history: list[dict[str, Any]] = []
+    plots: list[dict[str, Any]] = []
+    for _ in range(options.max_effects):
+        best: tuple[float, int, BasisSpec, np.ndarray, np.ndarray] | None = None
+        for j, design in enumerate(designs):
+            base_errors = design.held_out_errors()
+            theta = np.linalg.lstsq(design.base, design.y, rcond=None)[0]
+            residual = design.y - design.base @ theta
+            for spec in _candidates(data, j, n, residual, options, offsets):
+                cols = _filtered_columns(data, spec)
+                if not np.all(np.isfinite(cols)):
+                    continue
+                errors = design.held_out_errors(cols)
+                gain = 1.0 - np.sqrt(errors.sum() / max(base_errors.sum(), 1e-300))
+                wins = float(np.mean(errors < base_errors))
+                if gain >= options.min_rms_gain and wins >= options.min_fold_wins:
+                    score = gain
+                    if best is None or score > best[0]:
+                        best = (score, j, spec, cols, errors)
+        if best is None:
+            break
+        gain, j, spec, cols, errors = best
+        design = designs[j]
+        base_errors = design.held_out_errors()
+        explained = 1.0 - errors.sum() / max(base_errors.sum(), 1e-300)
+        after_j = design.relative_rms(errors)
+        accepted.append(TracedEffect(spec, float(explained), float(current[j]), after_j))
+        history.append({"effect": spec.describe(), "kind": spec.kind, "gain": float(gain)})
+        plots.append(_plot_data(data, design, spec, cols))
+        design.add(cols)
+        current[j] = after_j
+    model = _final_model(prepared, description, base, friction, [e.spec for e in accepted], config, offsets, accepted)
+    return ResidualReport(
+        before, current, tuple(accepted), model, int(data.folds.size), tuple(history), {"effects": plots}
+    )
+
+
+def _plot_data(data: _Data, design: _Design, spec: BasisSpec, cols: np.ndarray) -> dict[str, Any]:
+    """Residual of the joint against the traced variable, before and after adding ``spec``."""
+    raw = data.raw
+    offsets = np.cumsum([0] + [p.signals.n_samples for p in data.prepared[:-1]])
+    selected = np.concatenate([idx + o for idx, o in zip(data.rows, offsets, strict=True)])
+    variable = spec.variable if spec.shape != "constant" else "t"
+    x = variable_values(variable, raw["t"], raw["q"], raw["qd"], raw["tau"])[selected]
+    theta = np.linalg.lstsq(design.base, design.y, rcond=None)[0]
+    before = design.y - design.base @ theta
+    both = np.concatenate((design.base, cols), axis=1)
+    theta2 = np.linalg.lstsq(both, design.y, rcond=None)[0]
+    after = design.y - both @ theta2
+    return {"spec": spec, "x": x, "before": before, "after": after}
+
+
+def _final_model(prepared, description, base, friction, specs, config, offsets, accepted) -> DynamicModel:  # type: ignore[no-untyped-def]
+    """Refit rigid body, friction and all effects together on all data."""
+    n = description.n_joints
+    counts = friction.parameter_counts()
+    p_f = int(sum(counts))
+    r = 0 if base is None else base.count
+    effect_sizes = [s.size for s in specs]
+    total = r + p_f + (n if offsets else 0) + int(sum(effect_sizes))
+    blocks, torques = [], []
+    for item in prepared:
+        s = item.signals
+        v = s.valid
+        m = int(v.sum())
+        a = np.zeros((m, n, total))
+        a[:, :, :r] = s.rigid_regressor[v]
+        for j in range(n):
+            sl = friction.joint_slice(j)
+            a[:, j, r + sl.start : r + sl.stop] = lowpass_batch(friction.basis(j, s.qd_rad_s), s.t_s, config.cutoff_hz)[v]
+        col = r + p_f
+        if offsets:
+            a[:, :, col : col + n] = np.eye(n)
+            col += n
+        for spec in specs:
+            phi = lowpass_batch(spec.basis(s.t_s, s.q_rad, s.qd_rad_s, item.recording.tau_nm), s.t_s, config.cutoff_hz)
+            a[:, spec.joint, col : col + spec.size] = phi[v]
+            col += spec.size
+        blocks.append(a)
+        torques.append(s.tau_lowpassed_nm[v])
+    names = list(base.names() if base is not None else [])
+    for j in range(n):
+        names += friction.parameter_names(j)
+    if offsets:
+        names += [f"offset_{j + 1}" for j in range(n)]
+    for k, spec in enumerate(specs):
+        names += [f"effect{k + 1}[{i}]" for i in range(spec.size)]
+    fit = least_squares(np.concatenate(blocks), np.concatenate(torques), names, ridge=1e-8)
+    theta = fit.parameters
+    friction.parameters = theta[r : r + p_f].copy()
+    col = r + p_f
+    offsets_nm = np.zeros(n)
+    if offsets:
+        offsets_nm = theta[col : col + n].copy()
+        col += n
+    effects = []
+    for spec, traced in zip(specs, accepted, strict=True):
+        effects.append(FoundEffect(spec, theta[col : col + spec.size], traced.explained))
+        col += spec.size
+    return DynamicModel(
+        robot=description.name,
+        n_joints=n,
+        filter_config=config,
+        base=base,
+        base_values=theta[:r],
+        base_std=fit.standard_deviations[:r],
+        friction=friction,
+        offsets_nm=offsets_nm,
+        effects=tuple(effects),
+        notes={"sources": [str(p.recording.source) for p in prepared], "residual_loop": True},
+    )
