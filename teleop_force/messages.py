@@ -182,9 +182,22 @@ def _floats(values: object, name: str, *, finite: bool = True) -> tuple[float, .
         result = tuple(map(float, values))  # type: ignore[call-overload]
     except (TypeError, ValueError, OverflowError) as exc:
         raise MessageError(f"{name} must be a sequence of numbers: {exc}") from None
-    if finite and not all(map(math.isfinite, result)):
+    if finite and not _all_finite(result):
         raise MessageError(f"{name} contains a non-finite value: {result}")
     return result
+
+
+def _all_finite(values: tuple[float, ...]) -> bool:
+    # A sum is finite only if every term is; the exact test runs only when it is not.
+    return math.isfinite(sum(values)) or all(map(math.isfinite, values))
+
+
+def _build(cls: type, names: tuple[str, ...], values: Iterable[object]) -> Any:
+    """Create a message from already-validated field values, skipping ``__post_init__``."""
+    obj: Any = object.__new__(cls)
+    for name, value in zip(names, values, strict=True):
+        object.__setattr__(obj, name, value)
+    return obj
 
 
 def _joints(values: object, name: str, n: int | None = None) -> tuple[float, ...]:
@@ -293,7 +306,13 @@ class JointState:
         layout = _JOINT_STATE[n]
         _check_size(buf, layout.size, "JointState")
         v = layout.unpack(buf)
-        return cls(v[3], v[4], v[6 : 6 + n], v[6 + n : 6 + 2 * n], v[6 + 2 * n :])
+        if not _all_finite(v[6:]):
+            raise MessageError("JointState: non-finite q_rad, qd_rad_s or effort_nm")
+        return _build(
+            cls,
+            _JOINT_STATE_FIELDS,
+            (v[3], v[4], v[6 : 6 + n], v[6 + n : 6 + 2 * n], v[6 + 2 * n :]),
+        )
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable dict (the MCAP JSON channel encoding)."""
@@ -362,7 +381,9 @@ class JointSetpoint:
         layout = _JOINT_SETPOINT[n]
         _check_size(buf, layout.size, "JointSetpoint")
         v = layout.unpack(buf)
-        return cls(v[3], v[4], v[6:])
+        if not _all_finite(v[6:]):
+            raise MessageError("JointSetpoint: non-finite q_rad")
+        return _build(cls, _JOINT_SETPOINT_FIELDS, (v[3], v[4], v[6:]))
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable dict (the MCAP JSON channel encoding)."""
@@ -389,7 +410,7 @@ class ContactForce:
     TYPE: ClassVar[MessageType] = MessageType.CONTACT_FORCE
     seq: int
     t_ns: int
-    f_n: tuple[float, float, float]
+    f_n: tuple[float, ...]
 
     def __post_init__(self) -> None:
         """Validate and normalise the fields; raise MessageError."""
@@ -410,7 +431,9 @@ class ContactForce:
         _check_header(buf, cls.TYPE)
         _check_size(buf, _CONTACT_FORCE.size, "ContactForce")
         v = _CONTACT_FORCE.unpack(buf)
-        return cls(v[3], v[4], v[5:])
+        if not _all_finite(v[5:]):
+            raise MessageError("ContactForce: non-finite f_n")
+        return _build(cls, _CONTACT_FORCE_FIELDS, (v[3], v[4], v[5:]))
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable dict (the MCAP JSON channel encoding)."""
@@ -421,7 +444,7 @@ class ContactForce:
     def from_json_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of :meth:`to_json_dict`; raise MessageError."""
 
-        def build(d: Mapping[str, Any]) -> Self:
+        def build(d: Mapping[str, Any]) -> ContactForce:
             f = d["f_n"]
             return cls(d["seq"], d["t_ns"], (f["x"], f["y"], f["z"]))
 
@@ -456,7 +479,7 @@ class ForceEstimate:
     seq: int
     t_ns: int
     source_seq: int
-    f_n: tuple[float, float, float]
+    f_n: tuple[float, ...]
     tau_ext_nm: tuple[float, ...]
     on_trained_ground: tuple[bool, ...]
     coverage_weight: tuple[float, ...]
@@ -531,12 +554,21 @@ class ForceEstimate:
         mask = int.from_bytes(v[-1], "little")
         if mask >> n:
             raise MessageError(f"ForceEstimate: on_trained_ground bits set beyond joint {n}")
-        flags = tuple(bool(mask >> j & 1) for j in range(n))
+        f = v[7:10]
+        if any(map(math.isinf, f)):
+            raise MessageError("ForceEstimate: infinite f_n")
         o = 10  # index of tau_ext_nm[0] in v
-        return cls(
-            v[3], v[4], v[5], v[7:10],
-            v[o : o + n], flags, v[o + n : o + 2 * n],
-            v[o + 2 * n : o + 3 * n], v[o + 3 * n : o + 4 * n],
+        if not _all_finite(v[o:-1]):
+            raise MessageError("ForceEstimate: non-finite joint-space value")
+        flags = tuple(bool(mask >> j & 1) for j in range(n))
+        return _build(
+            cls,
+            _FORCE_ESTIMATE_FIELDS,
+            (
+                v[3], v[4], v[5], f,
+                v[o : o + n], flags, v[o + n : o + 2 * n],
+                v[o + 2 * n : o + 3 * n], v[o + 3 * n : o + 4 * n],
+            ),
         )  # fmt: skip
 
     def to_json_dict(self) -> dict[str, Any]:
@@ -558,14 +590,14 @@ class ForceEstimate:
     def from_json_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of :meth:`to_json_dict`; raise MessageError."""
 
-        def build(d: Mapping[str, Any]) -> Self:
+        def build(d: Mapping[str, Any]) -> ForceEstimate:
             f = d["f_n"]
             force = tuple(math.nan if f[k] is None else f[k] for k in ("x", "y", "z"))
             flags = d["on_trained_ground"]
             if not isinstance(flags, list) or not all(isinstance(x, bool) for x in flags):
                 raise MessageError("ForceEstimate: on_trained_ground must be a list of booleans")
             return cls(
-                d["seq"], d["t_ns"], d["source_seq"], force, d["tau_ext_nm"], flags,
+                d["seq"], d["t_ns"], d["source_seq"], force, d["tau_ext_nm"], tuple(flags),
                 d["coverage_weight"], d["tau_motor_filtered_nm"], d["tau_model_filtered_nm"],
             )  # fmt: skip
 
@@ -642,7 +674,11 @@ class Status:
             reason = bytes(buf[_STATUS_FIXED.size :]).decode("utf-8")
         except UnicodeDecodeError as exc:
             raise MessageError(f"Status: reason is not valid UTF-8: {exc.reason}") from None
-        return cls(v[3], v[4], v[5], reason)
+        try:
+            state = SafetyState(v[5])
+        except ValueError:
+            raise MessageError(f"Status: unknown safety state {v[5]}") from None
+        return _build(cls, _STATUS_FIELDS, (v[3], v[4], state, reason))
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable dict (the MCAP JSON channel encoding)."""
@@ -657,7 +693,7 @@ class Status:
     def from_json_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of :meth:`to_json_dict`; raise MessageError."""
 
-        def build(d: Mapping[str, Any]) -> Self:
+        def build(d: Mapping[str, Any]) -> Status:
             name = d["state"]
             if not isinstance(name, str) or name.upper() not in SafetyState.__members__:
                 raise MessageError(f"Status: unknown state {name!r}")
@@ -676,6 +712,15 @@ class Status:
             },
         )
 
+
+_JOINT_STATE_FIELDS: Final = ("seq", "t_ns", "q_rad", "qd_rad_s", "effort_nm")
+_JOINT_SETPOINT_FIELDS: Final = ("seq", "t_ns", "q_rad")
+_CONTACT_FORCE_FIELDS: Final = ("seq", "t_ns", "f_n")
+_FORCE_ESTIMATE_FIELDS: Final = (
+    "seq", "t_ns", "source_seq", "f_n", "tau_ext_nm", "on_trained_ground",
+    "coverage_weight", "tau_motor_filtered_nm", "tau_model_filtered_nm",
+)  # fmt: skip
+_STATUS_FIELDS: Final = ("seq", "t_ns", "state", "reason")
 
 # --------------------------------------------------------------------------- dispatch
 
@@ -733,7 +778,7 @@ def sequence_gap(previous_seq: int, seq: int) -> int:
     return (seq - previous_seq - 1) % (_UINT32_MAX + 1)
 
 
-__all__: Iterable[str] = (
+__all__ = (
     "HEADER_SIZE",
     "MAGIC",
     "MAX_JOINTS",
