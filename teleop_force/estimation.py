@@ -5,8 +5,9 @@ every motion, see :meth:`~teleop_force.regressor.BaseParameters.representative`)
 body terms come straight from pinocchio (``crba``, Coriolis matrix, gravity) instead of a
 regressor. Per sample::
 
-    tau_model_L = D_L(M(q) qd_raw) + L(-C^T qd + N + tau_spring + tau_f(qd) + offsets + effects)
-    tau_ext_L   = L(tau)[k - lag] - tau_model_L
+    q_v, qd     = L_v(q), backward difference of q_v      (pre-filter, see filtered_regressor)
+    tau_model_L = D_L(M(q_v) qd) + L(-C^T qd + N + tau_spring + tau_f(qd) + offsets + effects)
+    tau_ext_L   = L(L_v(tau))[k - lag] - tau_model_L
     F           = J(q)^-T tau_ext_L        (base frame, force of the tip on the environment)
 
 which is, sample for sample, the batch computation of
@@ -79,16 +80,17 @@ class ForceEstimator:
             self.robot = Robot(equivalent)
         config = model.filter_config
         self._lag = config.torque_lag_samples
-        self._velocity = LowPass(config.velocity_cutoff_hz)
+        self._angle = LowPass(config.velocity_cutoff_hz)
         self._momentum = FilteredDerivative(config.cutoff_hz)
         self._other = LowPass(config.cutoff_hz)
+        self._torque_prefilter = LowPass(config.velocity_cutoff_hz)
         self._torque = LowPass(config.cutoff_hz)
         self._t_prev: float | None = None
         self._q_prev = np.zeros(self.n)
 
     def reset(self) -> None:
         """Forget all filter state (start of a new stream)."""
-        for f in (self._velocity, self._momentum, self._other, self._torque):
+        for f in (self._angle, self._momentum, self._other, self._torque_prefilter, self._torque):
             f.reset()
         self._t_prev = None
 
@@ -100,17 +102,19 @@ class ForceEstimator:
             raise DataError(f"expected {self.n} joint angles and torques")
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(tau)) and np.isfinite(t_s)):
             raise DataError("non-finite joint angle, torque or time")
+        q_raw = q
         if self._t_prev is None:
             dt = 1e-3
-            qd_raw = np.zeros(self.n)
+            q = self._angle.update(q_raw, dt).copy()
+            qd = np.zeros(self.n)
         else:
             dt = t_s - self._t_prev
             if not dt > 0:
                 raise DataError(f"time does not increase ({t_s} after {self._t_prev})")
-            qd_raw = (q - self._q_prev) / dt
+            q = self._angle.update(q_raw, dt).copy()
+            qd = (q - self._q_prev) / dt
         self._t_prev = t_s
         self._q_prev = q
-        qd = self._velocity.update(qd_raw, dt)
         model = self.model
         other = model.friction_torque(qd[None, :])[0] + model.offsets_nm
         if model.effects:
@@ -119,14 +123,14 @@ class ForceEstimator:
             )[0]
         robot = self.robot
         if robot is not None:
-            momentum = robot.momentum(q, qd_raw)
+            momentum = robot.momentum(q, qd)
             other = other + robot.coriolis_transpose_gravity(q, qd)
             other = other + robot.spring_torque(q, self.spring_stiffness)
             tau_model = self._momentum.update(momentum, dt) + self._other.update(other, dt)
         else:
             tau_model = self._other.update(other, dt).copy()
         previous_torque = self._torque.state
-        tau_now = self._torque.update(tau, dt)
+        tau_now = self._torque.update(self._torque_prefilter.update(tau, dt), dt)
         tau_filtered = tau_now.copy() if (self._lag == 0 or previous_torque is None) else previous_torque
         tau_ext = tau_filtered - tau_model
         weight = model.friction.coverage_weight(qd[None, :])[0]
@@ -134,7 +138,7 @@ class ForceEstimator:
         singular = False
         if robot is not None and robot.description.tip_frame is not None:
             try:
-                force = robot.tip_force_from_joint_torque(q, tau_ext, self.sigma_min)
+                force = robot.tip_force_from_joint_torque(q_raw, tau_ext, self.sigma_min)
             except SingularityError:
                 singular = True
         return ForceEstimate(

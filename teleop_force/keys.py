@@ -10,6 +10,8 @@ Each key carries the id of the device it is about, so several arms can share one
     omni/<device>/service/model      queryable: the model the estimator runs
     omni/<device>/service/stats      queryable: estimator statistics
     omni/<device>/alive/<role>       liveliness token of one process (master, slave, service...)
+    omni/<device>/service/adapt      subscriber: payload "on" / "off" switches online adaptation
+    omni/<device>/stats/<role>       queryable: JSON statistics of one process (master, slave...)
 
 The same strings name the channels of a recorded MCAP session (see :mod:`mcap_session`).
 Device ids and roles are single key chunks: non-empty, without ``/`` or any of the Zenoh
@@ -35,6 +37,8 @@ STATUS: Final = "status"
 SERVICE_MODEL: Final = "service/model"
 SERVICE_STATS: Final = "service/stats"
 ALIVE: Final = "alive"
+SERVICE_ADAPT: Final = "service/adapt"
+STATS: Final = "stats"
 
 #: Topic kinds that carry a stream of messages (publisher / subscriber keys).
 DATA_KINDS: Final = (MEASURED_JS, SETPOINT_JS, MEASURED_CF, ESTIMATED_CF, STATUS)
@@ -101,6 +105,16 @@ def service_stats(device: str) -> str:
 def alive(device: str, role: str) -> str:
     """Key of the liveliness token of the process playing ``role`` for ``device``."""
     return f"{_key(device, ALIVE)}/{validate_chunk(role, 'role')}"
+
+
+def service_adapt(device: str) -> str:
+    """Key on which ``"on"`` / ``"off"`` switches the online adaptation of the estimator."""
+    return _key(device, SERVICE_ADAPT)
+
+
+def process_stats(device: str, role: str) -> str:
+    """Key of the queryable returning the JSON statistics of the ``role`` process of ``device``."""
+    return f"{_key(device, STATS)}/{validate_chunk(role, 'role')}"
 
 
 def alive_any(device: str | None = None) -> str:

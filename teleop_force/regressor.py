@@ -189,7 +189,10 @@ class RigidBodyRegressor:
             rows.append(self.standard(q, rng.normal(size=self.n), rng.normal(size=self.n)))
         w = np.vstack(rows)
         scale = np.linalg.norm(w, axis=0)
-        scale[scale == 0.0] = 1.0
+        # Columns that are round-off noise (parameters absent from the dynamics) are zero.
+        null = scale <= 1e-9 * scale.max()
+        w[:, null] = 0.0
+        scale[null] = 1.0
         _, r, perm = scipy.linalg.qr(w / scale, mode="economic", pivoting=True)
         diag = np.abs(np.diag(r))
         rank = int(np.sum(diag > 1e-8 * diag[0]))

@@ -142,7 +142,7 @@ def training_trajectory(
     half_range = 0.5 * (q_max - q_min) - margin_rad
     if np.any(half_range <= 0.0):
         raise ConfigurationError("joint range smaller than twice the margin")
-    n = int(round(duration_s * sample_rate_hz)) + 1
+    n = round(duration_s * sample_rate_hz) + 1
     t = np.arange(n) / sample_rate_hz
     centre = 0.5 * (region.lo + region.hi)
     half = 0.5 * (region.hi - region.lo)
@@ -174,7 +174,7 @@ def region_coverage(
     cells_2d: int = 40,
     min_samples: int = 1,
 ) -> RegionCoverage:
-    """Fraction of ``region``'s ``qd1`` cells and ``qd2``-``qd3`` cells visited by ``qd`` (N x 3)."""
+    """Fraction of the ``qd1`` and ``qd2``-``qd3`` cells of ``region`` visited by ``qd`` (N x 3)."""
     qd = np.asarray(qd, dtype=float)
     if qd.ndim != 2 or qd.shape[1] < 3:
         raise DataError(f"need velocities (N, 3), got {qd.shape}")

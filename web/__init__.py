@@ -1,0 +1,1 @@
+"""teleop-force browser dashboard (viser); run with ``python -m web``."""

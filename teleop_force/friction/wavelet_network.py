@@ -415,7 +415,7 @@ class WaveletNetwork(FrictionModel):
         self.fallback = fallback
         if fallback is not None and fallback.n_joints != n_joints:
             raise ModelError("wn: fallback model has a different number of joints")
-        self.coverage = (
+        self.coverage: CoverageMap | None = (
             coverage
             if coverage is not None
             else CoverageMap.for_inputs(
@@ -512,7 +512,7 @@ class WaveletNetwork(FrictionModel):
 
     # -- FrictionModel API -----------------------------------------------------------------
 
-    @property  # type: ignore[override]
+    @property
     def parameters(self) -> np.ndarray:
         """Coefficients of the active wavelets, joint by joint (read-only copy)."""
         out = self._coef[self._active_idx]

@@ -11,14 +11,17 @@ force of the tip on the tissue (:class:`PlaneContact`) and ``tau_effects`` the s
 
 Integration: each 1 ms tick is split into ``substeps`` (default 4, 0.25 ms) semi-implicit Euler
 steps ``qd += h qdd; q += h qd``. Per tick, pinocchio evaluates ``M``, ``C qd + N``, the tip
-Jacobian ``J`` and the tip position ``p0`` once at the start state; within the tick the tip
-moves as ``p0 + J (q - q0)`` and the spring, friction, contact and effects are re-evaluated at
-every sub-step. Friction is stiff (the smoothed sign has slope ~5 N m s/rad against inertias
-down to 6e-4 kg m^2, a time constant of ~0.1 ms), so it is integrated *linearly implicitly*:
-each sub-step solves ``(M + h D) qdd = rhs`` with ``D = d(tau_f + tau_effects)/d qd``. This is
-stable for any sub-step; 4 sub-steps keep the friction's zero crossings and the contact
-(k = 300 N/m, ~25 Hz at the joints) accurate. Without friction and gravity the mechanical
-energy drifts by well under 1 % per second.
+Jacobian ``J`` and the tip position ``p0`` once, at the tick's start state (one
+``computeAllTerms`` call); within the tick the tip moves as ``p0 + J (q - q0)`` and the spring,
+friction, contact and effects are re-evaluated at every sub-step. Friction is stiff (the
+smoothed sign has slope ~5 N m s/rad against inertias down to 6e-4 kg m^2: a time constant of
+~0.1 ms), so it is integrated *linearly implicitly*: each sub-step solves
+``(M + h D) qdd = rhs`` with ``D = d(tau_f + tau_effects)/d qd``, stable for any sub-step.
+The sub-steps are for accuracy: against 16 sub-steps, 4 leave ~1e-4 N m RMS of torque error
+and < 1e-4 rad of angle error on the friction and palpation protocols (below the actuator
+noise and the encoder count; 2 sub-steps double these, 1 quadruples them), and the contact
+(300 N/m, ~25 Hz at the joints) is resolved with 160 steps per period. With no torque,
+friction or gravity, the mechanical energy drifts by ~0.3 % over 1 s.
 
 Measured angles are quantized to the encoder resolution. All randomness (actuator noise) comes
 from one seeded :class:`numpy.random.Generator`, so a run is reproducible.
@@ -155,7 +158,10 @@ class SimulatedOmni(Device):
         qd0_rad_s: np.ndarray | None = None,
         description: RobotDescription | None = None,
     ) -> None:
-        """Create the plant at rest at ``q0_rad`` (default: mid-range) at time 0."""
+        """Create the plant at ``q0_rad`` (default: mid-range) with ``qd0_rad_s`` (default 0).
+
+        ``seed`` seeds the actuator noise; ``description`` defaults to the built-in Omni.
+        """
         self.config = config if config is not None else PlantConfig()
         super().__init__(self.config.torque_limit_nm)
         description = description if description is not None else omni.omni_description()

@@ -138,7 +138,9 @@ def test_torque_batch_single_and_basis_agree():
     qd = np.random.default_rng(1).uniform(-2.0, 2.0, size=(3000, 3))
     batch = net.torque(qd)
     for j in range(3):
-        np.testing.assert_allclose(batch[:, j], net.basis(j, qd) @ net.joint_parameters(j), atol=1e-15)
+        np.testing.assert_allclose(
+            batch[:, j], net.basis(j, qd) @ net.joint_parameters(j), atol=1e-15
+        )
     for k in (0, 17, 2999):
         np.testing.assert_allclose(net.torque(qd[k]), batch[k], rtol=1e-12, atol=1e-18)
     np.testing.assert_allclose(net.torque(qd[:3]), batch[:3], rtol=1e-12, atol=1e-18)

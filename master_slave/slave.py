@@ -1,0 +1,384 @@
+"""The slave Omni process: a simulated Omni touching a soft tissue, following the master.
+
+Every 1 ms tick (``RateLoop``, perf_counter deadlines)::
+
+    read the plant (measured q, true tip force)
+    safety: follow the latest master setpoint, or hold (SafetyMonitor)
+    PID toward the (slew-limited) setpoint, plus extra damping while holding
+    command the torque, publish JointState and ContactForce, step the plant
+
+Published (``<slave>`` = ``--device``)::
+
+    omni/<slave>/measured_js    JointState: measured q, qd (filtered difference), effort = the
+                                commanded (clipped) motor torque; seq = tick, t_ns = tick time
+    omni/<slave>/measured_cf    ContactForce: the plant's true tip force, same seq and t_ns
+    omni/<slave>/status         Status: on every change and every 100 ms
+    omni/<slave>/alive/slave    liveliness token
+    omni/<slave>/stats/slave    queryable: JSON statistics (loop, setpoints, safety)
+
+Subscribed: ``omni/<master>/setpoint_js`` and the master's liveliness token
+``omni/<master>/alive/master``. SAFETY: when the token disappears or the last setpoint arrived
+more than ``--stale-ms`` (50) ago, the slave holds in the same tick: the setpoint is frozen at
+the current measured q and extra joint damping is added; Status HOLDING gives the reason. It
+follows again (slew-limited, no jump) once ``resume_count`` fresh setpoints have arrived with
+the token present. Malformed or wrong-version setpoints are counted and dropped.
+
+Run: ``python -m master_slave.slave --device slave --master master --connect tcp/...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from master_slave.operator import DEFAULT_SURFACE_Y_M, palpation_start_rad
+from master_slave.process_args import (
+    RunConfig,
+    add_process_arguments,
+    loop_config_from_args,
+    run_config_from_args,
+)
+from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.safety import SafetyConfig, SafetyMonitor
+from teleop_force import keys
+from teleop_force import messages as m
+from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
+from teleop_force.service_runtime import StopSignal, log, write_json
+from teleop_force.service_stats import LatencyWindow, SequenceTracker
+from teleop_force.service_transport import (
+    declare_data_publisher,
+    declare_json_queryable,
+    declare_liveliness_subscriber,
+    declare_subscriber,
+    declare_token,
+    put,
+    undeclare_all,
+    wait_for_subscribers,
+)
+from teleop_force.simulation import PID, PIDGains, PlaneContact, PlantConfig, SimulatedOmni
+from teleop_force.zenoh_session import ZenohOptions, open_session, options_from_args
+
+ROLE = "slave"
+STATUS_PERIOD_S = 0.1
+SEQ_MASK = 0xFFFF_FFFF
+
+
+@dataclass(frozen=True)
+class SlaveConfig:
+    """Settings of the slave process.
+
+    Attributes:
+        device: Device id of the slave.
+        master: Device id of the master it follows.
+        loop: Control-loop timing.
+        run: Duration, start handshake, statistics output.
+        safety: Staleness threshold and resume rule.
+        max_speed_rad_s: Slew-rate limit of the followed setpoint per joint.
+        hold_damping_nms_per_rad: Extra joint damping while holding.
+        surface_y_m: Height of the tissue surface (``None``: no tissue).
+        seed: Seed of the plant's actuator noise.
+
+    """
+
+    device: str = "slave"
+    master: str = "master"
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    max_speed_rad_s: float = 2.0
+    hold_damping_nms_per_rad: tuple[float, float, float] = (0.06, 0.07, 0.03)
+    surface_y_m: float | None = DEFAULT_SURFACE_Y_M
+    seed: int = 1
+
+    def __post_init__(self) -> None:
+        """Validate the ids and ranges."""
+        keys.validate_chunk(self.device)
+        keys.validate_chunk(self.master)
+        if not (math.isfinite(self.max_speed_rad_s) and self.max_speed_rad_s > 0.0):
+            raise ConfigurationError(f"max_speed_rad_s must be > 0, got {self.max_speed_rad_s}")
+        damping = tuple(float(x) for x in self.hold_damping_nms_per_rad)
+        if len(damping) != 3 or any(not (math.isfinite(x) and x >= 0.0) for x in damping):
+            raise ConfigurationError("hold_damping_nms_per_rad needs 3 values >= 0")
+        object.__setattr__(self, "hold_damping_nms_per_rad", damping)
+        if self.seed < 0:
+            raise ConfigurationError(f"seed must be >= 0, got {self.seed}")
+
+
+class SetpointInbox:
+    """The latest valid setpoint from the master, written by the Zenoh callback thread."""
+
+    def __init__(self, n_joints: int = 3) -> None:
+        """Start empty."""
+        self._lock = threading.Lock()
+        self._n = n_joints
+        self.q_rad: np.ndarray | None = None
+        self.arrival_s: float | None = None
+        self.count = 0
+        self.malformed = 0
+        self.last_malformed = ""
+        self.seqs = SequenceTracker()
+        self.latency = LatencyWindow()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh callback: decode, check, account for and keep one setpoint."""
+        arrival_ns = time.time_ns()
+        arrival_s = time.perf_counter()
+        try:
+            setpoint = m.JointSetpoint.decode(sample.payload.to_bytes())
+            if setpoint.n_joints != self._n:
+                raise MessageError(f"{setpoint.n_joints} joints, the slave has {self._n}")
+        except MessageError as exc:
+            with self._lock:
+                self.malformed += 1
+                self.last_malformed = str(exc)
+            return
+        q = np.array(setpoint.q_rad)
+        with self._lock:
+            self.seqs.observe(setpoint.seq)
+            self.latency.add((arrival_ns - setpoint.t_ns) * 1e-9)
+            self.q_rad = q
+            self.arrival_s = arrival_s
+            self.count += 1
+
+    def latest(self) -> tuple[np.ndarray | None, float | None, int]:
+        """``(q, arrival time [perf_counter s], number received)``."""
+        with self._lock:
+            return self.q_rad, self.arrival_s, self.count
+
+    def stats(self) -> dict[str, Any]:
+        """Counters and the setpoint latency (master stamp -> arrival here) [ms]."""
+        with self._lock:
+            return {
+                **self.seqs.to_dict(),
+                "valid": self.count,
+                "malformed": self.malformed,
+                "last_malformed": self.last_malformed,
+                "latency_ms": self.latency.summary_ms(),
+            }
+
+
+class MasterPresence:
+    """Whether the master's liveliness token is present (liveliness subscriber callback)."""
+
+    def __init__(self) -> None:
+        """Not present until a token is reported."""
+        self.alive = False
+        self.changes = 0
+        self.lost_at_s: float | None = None
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh liveliness callback."""
+        alive = sample.kind == zenoh.SampleKind.PUT
+        if alive != self.alive:
+            self.changes += 1
+        if not alive:
+            self.lost_at_s = time.perf_counter()
+        self.alive = alive
+
+
+class SlaveProcess:
+    """The slave's plant, controller, safety monitor and Zenoh entities."""
+
+    def __init__(self, config: SlaveConfig, options: ZenohOptions, stop: StopSignal) -> None:
+        """Build the plant; nothing is opened until :meth:`run`."""
+        self.config = config
+        self.options = options
+        self.stop = stop
+        contact = None if config.surface_y_m is None else PlaneContact.horizontal(config.surface_y_m)
+        surface = DEFAULT_SURFACE_Y_M if config.surface_y_m is None else config.surface_y_m
+        self.plant = SimulatedOmni(
+            PlantConfig(control_period_s=config.loop.period_s),
+            seed=config.seed,
+            contact=contact,
+            q0_rad=palpation_start_rad(surface),
+        )
+        self.pid = PID(PIDGains.omni(), n_joints=3, control_period_s=config.loop.period_s)
+        self.pid.reset(integral_nm=self.plant.holding_torque_nm())
+        self.loop = RateLoop(config.loop)
+        self.safety = SafetyMonitor(config.safety)
+        self.inbox = SetpointInbox()
+        self.presence = MasterPresence()
+        self.published = 0
+        self.hold_events: list[dict[str, Any]] = []
+        self._status_seq = 0
+        self._last_status_s = -math.inf
+        self._status_pub: zenoh.Publisher | None = None
+
+    # -- statistics ---------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        """JSON statistics of the process (also the reply of the stats queryable)."""
+        return {
+            "role": ROLE,
+            "device": self.config.device,
+            "master": self.config.master,
+            "state": self.safety.state.name.lower(),
+            "reason": self.safety.reason,
+            "loop": self.loop.stats(),
+            "setpoints": self.inbox.stats(),
+            "published_joint_states": self.published,
+            "master_alive": self.presence.alive,
+            "holds": self.safety.holds,
+            "hold_events": self.hold_events[-20:],
+            "torque_clips": self.plant.clip_count,
+        }
+
+    # -- main loop ----------------------------------------------------------------------------
+
+    def run(self) -> dict[str, Any]:
+        """Open Zenoh, run the control loop until stopped, clean up; return the final stats."""
+        config = self.config
+        session = open_session(self.options)
+        entities: list[Any] = []
+        try:
+            js_pub = declare_data_publisher(session, keys.measured_js(config.device))
+            cf_pub = declare_data_publisher(session, keys.measured_cf(config.device))
+            self._status_pub = declare_data_publisher(session, keys.status(config.device))
+            entities += [js_pub, cf_pub, self._status_pub]
+            entities.append(
+                declare_subscriber(session, keys.setpoint_js(config.master), self.inbox.on_sample)
+            )
+            entities.append(
+                declare_liveliness_subscriber(
+                    session, keys.alive(config.master, "master"), self.presence.on_sample
+                )
+            )
+            entities.append(
+                declare_json_queryable(session, keys.process_stats(config.device, ROLE), self.stats)
+            )
+            entities.append(declare_token(session, keys.alive(config.device, ROLE)))
+            if config.run.wait_subscribers_s > 0.0:
+                matched = wait_for_subscribers(
+                    js_pub, config.run.wait_subscribers_s, stop=self.stop.is_set
+                )
+                if not matched and not self.stop.is_set():
+                    log(ROLE, "no subscriber for the joint states yet; starting anyway")
+            self._publish_status(time.perf_counter(), force=True)
+            log(ROLE, f"{config.device} running at {config.loop.rate_hz:g} Hz, following {config.master}")
+            self._control_loop(js_pub, cf_pub)
+            self.safety.stop("slave stopped")
+            self._publish_status(time.perf_counter(), force=True)
+        finally:
+            undeclare_all(*reversed(entities))
+            self.plant.close()
+            session.close()
+        return self.stats()
+
+    def _control_loop(self, js_pub: zenoh.Publisher, cf_pub: zenoh.Publisher) -> None:
+        config = self.config
+        plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
+        n_ticks = None if config.run.duration_s is None else round(config.run.duration_s * config.loop.rate_hz)
+        max_step = config.max_speed_rad_s * config.loop.period_s
+        damping = np.array(config.hold_damping_nms_per_rad)
+        hold_q = plant.measured_q_rad()
+        q_ref = hold_q.copy()
+        following = m.SafetyState.FOLLOWING
+        loop.start()
+        while not self.stop.is_set():
+            k = loop.wait()
+            if n_ticks is not None and k >= n_ticks:
+                break
+            stamp_ns = loop.stamp_ns
+            state = plant.read()
+            q = state.q_rad
+            q_sp, arrival_s, count = inbox.latest()
+            now_s = time.perf_counter()
+            decision = safety.update(now_s, self.presence.alive, arrival_s, count)
+            if decision.changed:
+                if decision.state != following:
+                    hold_q = q.copy()
+                    q_ref = hold_q.copy()
+                    self._record_hold(now_s, arrival_s, decision.reason)
+                self._publish_status(now_s, force=True)
+            if decision.state == following and q_sp is not None:
+                q_ref = q_ref + np.clip(q_sp - q_ref, -max_step, max_step)
+            tau = pid.update(q_ref, q)
+            if decision.state != following:
+                tau = tau - damping * pid.velocity_rad_s
+            command = plant.command_torque(tau)
+            seq = k & SEQ_MASK
+            put(
+                js_pub,
+                m.JointState(seq, stamp_ns, q, pid.velocity_rad_s, command.tau_nm).encode(),
+            )
+            put(cf_pub, m.ContactForce(seq, stamp_ns, state.f_tip_in_base_n).encode())
+            self.published += 1
+            if now_s - self._last_status_s >= STATUS_PERIOD_S:
+                self._publish_status(now_s)
+            plant.step()
+
+    def _record_hold(self, now_s: float, arrival_s: float | None, reason: str) -> None:
+        event: dict[str, Any] = {"tick": self.loop.tick, "reason": reason}
+        if arrival_s is not None:
+            event["setpoint_age_ms"] = round((now_s - arrival_s) * 1e3, 3)
+        if self.presence.lost_at_s is not None and not self.presence.alive:
+            event["since_token_lost_ms"] = round((now_s - self.presence.lost_at_s) * 1e3, 3)
+        self.hold_events.append(event)
+        if self.safety.state == m.SafetyState.HOLDING:
+            log(ROLE, f"HOLDING: {reason}")
+
+    def _publish_status(self, now_s: float, force: bool = False) -> None:
+        if self._status_pub is None or (not force and now_s - self._last_status_s < STATUS_PERIOD_S):
+            return
+        status = m.Status(self._status_seq, time.time_ns(), self.safety.state, self.safety.reason)
+        put(self._status_pub, status.encode())
+        self._status_seq += 1
+        self._last_status_s = now_s
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Flags of ``python -m master_slave.slave``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m master_slave.slave", description=__doc__.splitlines()[0]
+    )
+    add_process_arguments(parser, device="slave", wait_subscribers_s=0.0)
+    parser.add_argument("--master", default="master", help="device id of the master (default master)")
+    parser.add_argument("--stale-ms", type=float, default=50.0, help="hold when the last setpoint is older (default 50)")
+    parser.add_argument("--max-speed", type=float, default=2.0, help="setpoint slew limit [rad/s] (default 2)")
+    parser.add_argument("--surface-y", type=float, default=DEFAULT_SURFACE_Y_M, help="tissue surface height [m]")
+    parser.add_argument("--no-tissue", action="store_true", help="no soft tissue (free space)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the actuator noise")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the slave process; return the exit status."""
+    args = build_parser().parse_args(argv)
+    stop = StopSignal().install()
+    try:
+        config = SlaveConfig(
+            device=args.device,
+            master=args.master,
+            loop=loop_config_from_args(args),
+            run=run_config_from_args(args),
+            safety=SafetyConfig(stale_s=args.stale_ms * 1e-3),
+            max_speed_rad_s=args.max_speed,
+            surface_y_m=None if args.no_tissue else args.surface_y,
+            seed=args.seed,
+        )
+        stats = SlaveProcess(config, options_from_args(args), stop).run()
+    except TeleopForceError as exc:
+        log(ROLE, f"error: {exc}")
+        return 2
+    if config.run.stats_json:
+        write_json(config.run.stats_json, stats)
+    loop_stats = stats["loop"]
+    log(
+        ROLE,
+        f"stopped after {loop_stats['ticks']} ticks: overruns {loop_stats['overruns']}, "
+        f"setpoints lost {stats['setpoints']['lost']}, malformed {stats['setpoints']['malformed']}",
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,236 @@
+"""The da Vinci Research Kit master tool manipulator (MTM), from its published parameters.
+
+Kinematics: the standard DH table of ``../shared/datasets/README.md`` (dVRK joint values,
+lengths ``l_arm = 0.2794``, ``l_forearm = 0.3645``, ``h = 0.1506`` m), seven revolute joints
+(outer yaw, shoulder pitch, elbow pitch, wrist platform, wrist pitch, wrist yaw, wrist roll).
+
+Coordinates: motor coordinates are the dataset's (its identification model's, the "file"
+coordinates); model coordinates are the dVRK DH joint values. With
+``C = [[1, 0, 0], [-1, 1, 0], [0.6697, -0.6697, 1]]`` acting on ``(q2, q3, q4)``,
+``q_dvrk = C q_file``, so the coupling is ``T = blockdiag(1, C, 1, 1, 1)`` and, as everywhere
+in the project, ``tau_file = T^T tau_dvrk``. ``q3`` in the file is the absolute elbow angle
+(the parallelogram), and joint 4's cable angle ``0.6697 (q2 - q3) + q4`` couples it to 2 and 3.
+
+Gravity is along ``-y`` of DH frame 0 (the MTM base frame): of the six axis directions it is
+the one whose identified model fits the training torques best, by far (see
+``docs/robots.md``); the outer yaw axis ``z0`` is then horizontal... no: see
+:data:`GRAVITY_MPS2` for the measured choice.
+
+Link inertias are not published with the data: the nominal links are light placeholders
+(identification finds the base parameters, the nominal values only fill the unidentifiable
+directions). The counterweight, the parallelogram, the joint-5 gravity spring and the cable
+stiffness are *not* modelled: they are effects for the residual loop to find.
+
+The native data files (``mtm_traj_*_results.csv``) are read by :func:`read_mtm_csv`.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from teleop_force.dh import DHLink, DHRow, build_dh_model
+from teleop_force.errors import DataError
+from teleop_force.interchange_csv import Recording
+from teleop_force.robot import RobotDescription
+
+NAME = "dvrk-mtm"
+N_JOINTS = 7
+ARM_LENGTH_M = 0.2794
+FOREARM_LENGTH_M = 0.3645
+WRIST_PLATFORM_OFFSET_M = 0.1506
+#: Joint-4 cable coupling ratio of the dataset's coordinates.
+CABLE_RATIO = 0.6697
+#: ``q_dvrk[1:4] = PARALLELOGRAM_CABLE_COUPLING @ q_file[1:4]``.
+PARALLELOGRAM_CABLE_COUPLING = np.array(
+    [[1.0, 0.0, 0.0], [-1.0, 1.0, 0.0], [CABLE_RATIO, -CABLE_RATIO, 1.0]]
+)
+GRAVITY_MPS2 = (0.0, -9.81, 0.0)
+SAMPLE_RATE_HZ = 200.0
+#: Columns of a native file: q1..q7, qd1..qd7, tau1..tau7.
+NATIVE_COLUMNS = 3 * N_JOINTS
+JOINT_NAMES = (
+    "outer yaw q1",
+    "shoulder pitch q2",
+    "elbow pitch q3 (absolute)",
+    "wrist platform q4",
+    "wrist pitch q5",
+    "wrist yaw q6",
+    "wrist roll q7",
+)
+#: Reachable range in file coordinates [rad] (covers both published trajectories; joint 7
+#: turns more than once).
+Q_MIN_RAD = np.array([-0.8, -0.3, -0.3, -1.5, -1.6, -0.8, -8.0])
+Q_MAX_RAD = np.array([1.1, 1.0, 0.8, 3.0, 3.0, 0.8, 8.0])
+#: Joint 2 and 3 rub on the parallelogram (relative elbow velocity), joint 4's cable runs
+#: over joints 2 and 3: its friction sees all three.
+FRICTION_INPUTS = ((0,), (1, 2), (1, 2), (1, 2, 3), (4,), (5,), (6,))
+
+
+def dh_rows() -> tuple[DHRow, ...]:
+    """The MTM's standard DH table (dVRK joint values), with light nominal links."""
+    half = np.pi / 2
+    table = (
+        (half, 0.0, 0.0, -half),
+        (0.0, ARM_LENGTH_M, 0.0, -half),
+        (-half, FOREARM_LENGTH_M, 0.0, half),
+        (half, 0.0, WRIST_PLATFORM_OFFSET_M, 0.0),
+        (-half, 0.0, 0.0, 0.0),
+        (half, 0.0, 0.0, -half),
+        (0.0, 0.0, 0.0, half),
+    )
+    # Nominal links: a point-ish mass halfway along each arm segment, small ones at the wrist.
+    links = (
+        DHLink(1.0, (0.0, 0.0, 0.0), _diag(1e-3)),
+        DHLink(0.8, (-ARM_LENGTH_M / 2, 0.0, 0.0), _diag(2e-3)),
+        DHLink(0.6, (-FOREARM_LENGTH_M / 2, 0.0, 0.0), _diag(2e-3)),
+        DHLink(0.3, (0.0, 0.0, 0.0), _diag(5e-4)),
+        DHLink(0.1, (0.0, 0.0, 0.0), _diag(1e-4)),
+        DHLink(0.1, (0.0, 0.0, 0.0), _diag(1e-4)),
+        DHLink(0.05, (0.0, 0.0, 0.0), _diag(5e-5)),
+    )
+    return tuple(
+        DHRow(alpha, a, d, offset, "revolute", link)
+        for (alpha, a, d, offset), link in zip(table, links, strict=True)
+    )
+
+
+def _diag(value: float) -> tuple[tuple[float, float, float], ...]:
+    return ((value, 0.0, 0.0), (0.0, value, 0.0), (0.0, 0.0, value))
+
+
+def mtm_coupling() -> np.ndarray:
+    """``T = blockdiag(1, C, 1, 1, 1)`` with ``q_dvrk = T @ q_file``."""
+    coupling = np.eye(N_JOINTS)
+    coupling[1:4, 1:4] = PARALLELOGRAM_CABLE_COUPLING
+    return coupling
+
+
+def dvrk_mtm_description(gravity_mps2: tuple[float, float, float] = GRAVITY_MPS2) -> RobotDescription:
+    """Return the built-in dVRK MTM description (motor = file coordinates)."""
+    model = build_dh_model(
+        dh_rows(),
+        gravity_mps2=gravity_mps2,
+        tip_frame="tip",
+        joint_names=[
+            "outer_yaw", "shoulder_pitch", "elbow_pitch", "wrist_platform",
+            "wrist_pitch", "wrist_yaw", "wrist_roll",
+        ],
+        name="dvrk_mtm",
+    )
+    return RobotDescription(
+        name=NAME,
+        model=model,
+        n_joints=N_JOINTS,
+        coupling=mtm_coupling(),
+        tip_frame="tip",
+        rotor_inertia_kgm2=np.zeros(N_JOINTS),
+        friction_inputs=FRICTION_INPUTS,
+        q_min_rad=Q_MIN_RAD,
+        q_max_rad=Q_MAX_RAD,
+        joint_names=JOINT_NAMES,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class MtmTrajectory:
+    """A native MTM file after dropping repeated rows.
+
+    Attributes:
+        recording: Time (``row / 200`` s of the kept rows), angles and torques, file
+            coordinates.
+        qd_rad_s: The file's velocity columns for the kept rows.
+        total_rows: Rows in the file.
+        repeated_rows: Rows dropped because their joint state (angles and velocities)
+            repeated the previous row's (asynchronous logging).
+    """
+
+    recording: Recording
+    qd_rad_s: np.ndarray
+    total_rows: int
+    repeated_rows: int
+
+    def __post_init__(self) -> None:
+        if self.qd_rad_s.shape != self.recording.q_rad.shape:
+            raise DataError("velocity and angle arrays differ in shape", path=self.recording.source)
+        if not 0 <= self.repeated_rows < self.total_rows:
+            raise DataError("repeated row count out of range", path=self.recording.source)
+
+    def note(self) -> str:
+        """One line telling what was dropped."""
+        return (
+            f"{self.recording.source}: dropped {self.repeated_rows} of {self.total_rows} rows "
+            f"({self.repeated_rows / self.total_rows:.1%}) repeating the previous joint state"
+        )
+
+
+def looks_like_mtm_csv(first_line: str) -> bool:
+    """Whether a CSV's first line is a headerless row of 21 numbers (a native MTM file)."""
+    cells = first_line.strip().split(",")
+    if len(cells) != NATIVE_COLUMNS:
+        return False
+    try:
+        [float(c) for c in cells]
+    except ValueError:
+        return False
+    return True
+
+
+def read_mtm_csv(path: str | os.PathLike[str]) -> MtmTrajectory:
+    """Read a native ``mtm_traj_*_results.csv`` (no header, 21 columns, 200 Hz).
+
+    Rows whose angles and velocities equal the previous row's are stale samples of the
+    asynchronous logger and are dropped (differentiating them would give zero-velocity
+    spikes); the time of a kept row stays ``row / 200``.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read file: {exc}", path=path) from None
+    lines = [line for line in text.splitlines() if line.strip()]
+    if not lines:
+        raise DataError("empty file: expected rows of 21 numbers (q1..q7, qd1..qd7, tau1..tau7)", path=path)
+    table = np.empty((len(lines), NATIVE_COLUMNS))
+    for i, line in enumerate(lines):
+        cells = line.split(",")
+        if len(cells) != NATIVE_COLUMNS:
+            raise DataError(f"{len(cells)} cells, a native MTM row has {NATIVE_COLUMNS}", path=path, row=i + 1)
+        try:
+            table[i] = [float(c) for c in cells]
+        except ValueError:
+            bad = next(j for j, c in enumerate(cells) if not _is_float(c))
+            raise DataError(f"not a number: {cells[bad].strip()!r}", path=path, row=i + 1, column=_column_name(bad)) from None
+    finite = np.isfinite(table)
+    if not finite.all():
+        row, col = np.argwhere(~finite)[0]
+        raise DataError("not finite", path=path, row=int(row) + 1, column=_column_name(int(col)))
+    state = table[:, : 2 * N_JOINTS]
+    repeated = np.zeros(len(table), dtype=bool)
+    repeated[1:] = np.all(state[1:] == state[:-1], axis=1)
+    kept = np.flatnonzero(~repeated)
+    if kept.size < 3:
+        raise DataError(f"only {kept.size} distinct rows", path=path)
+    recording = Recording(
+        t_s=kept / SAMPLE_RATE_HZ,
+        q_rad=table[kept, :N_JOINTS],
+        tau_nm=table[kept, 2 * N_JOINTS :],
+        source=path,
+    )
+    return MtmTrajectory(recording, table[kept, N_JOINTS : 2 * N_JOINTS], len(table), int(repeated.sum()))
+
+
+def _is_float(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _column_name(index: int) -> str:
+    kind = ("q", "qd", "tau")[index // N_JOINTS]
+    return f"{kind}{index % N_JOINTS + 1}"

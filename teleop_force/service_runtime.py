@@ -1,0 +1,67 @@
+"""Process lifetime helpers shared by the long-running commands (service, master, slave, replay).
+
+:class:`StopSignal` turns SIGINT and SIGTERM into a flag the main loop polls, so every process
+leaves through the same clean path: stop its loop, undeclare its Zenoh entities (its
+liveliness token disappears at once), close recordings, write its final statistics.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from teleop_force.errors import DataError
+
+
+class StopSignal:
+    """A stop flag set by SIGINT / SIGTERM (once installed) or by :meth:`set`."""
+
+    def __init__(self) -> None:
+        """Create the flag, not set."""
+        self._event = threading.Event()
+        self.signal_name: str | None = None
+
+    def install(self) -> StopSignal:
+        """Handle SIGINT and SIGTERM by setting the flag (main thread only); return self."""
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._handle)
+            signal.signal(signal.SIGTERM, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.signal_name = signal.Signals(signum).name
+        self._event.set()
+
+    def set(self) -> None:
+        """Ask the process to stop."""
+        self._event.set()
+
+    def is_set(self) -> bool:
+        """Whether a stop was asked for."""
+        return self._event.is_set()
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Sleep until a stop is asked for or ``timeout_s`` passes; return whether it was."""
+        return self._event.wait(timeout_s)
+
+
+def write_json(path: str | Path, payload: Any) -> None:
+    """Write ``payload`` as JSON to ``path`` (``-`` for stdout); raise DataError."""
+    text = json.dumps(payload, indent=1, allow_nan=False)
+    if str(path) == "-":
+        print(text, flush=True)
+        return
+    try:
+        Path(path).write_text(text + "\n")
+    except OSError as exc:
+        raise DataError(f"cannot write: {exc.strerror or exc}", path=path) from None
+
+
+def log(prefix: str, message: str) -> None:
+    """Print one log line to stderr."""
+    print(f"[{prefix}] {message}", file=sys.stderr, flush=True)

@@ -1,0 +1,412 @@
+"""The dashboard in a real headless Chromium, fed by real Zenoh traffic from this test.
+
+The test process plays the teleop system: it listens on a loopback endpoint (peer mode,
+multicast scouting off), publishes synthetic JointState / ForceEstimate / ContactForce at
+~1 kHz plus setpoints and a status, and answers the service's model / stats / control
+queries. The dashboard runs as ``python -m web`` in a subprocess connected to that endpoint;
+playwright drives Debian's Chromium (never a downloaded browser). A third Zenoh session counts
+``seq`` gaps of the 1 kHz stream while the dashboard is open, to show the dashboard does not
+cost the other subscribers anything; the figures go to test-output/dashboard_loss.json.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from teleop_force import keys
+from teleop_force import messages as m
+from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]  # fmt: skip
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "test-output"
+DEVICE, MASTER = "slave", "master"
+RATE_HZ = 1000.0
+#: Radius of the trained disc in the (qd2, qd3) plane and qd1 half-range [rad/s].
+TRAINED_RADIUS = 1.0
+TRAINED_QD1 = 1.2
+
+pytestmark = pytest.mark.skipif(
+    not CHROMIUM.exists(),
+    reason="Debian's chromium is not installed at /usr/bin/chromium (apt-get install chromium)",
+)
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (python) not installed")
+
+
+# --------------------------------------------------------------------------- the fake system
+
+
+def model_json() -> dict:
+    """A model whose WN was trained inside a disc of radius 1 rad/s in the (qd2, qd3) plane."""
+    v = 3.0
+    n2 = 40
+    centres = (np.arange(n2) + 0.5) / n2 * 2 * v - v
+    g2, g3 = np.meshgrid(centres, centres, indexing="ij")
+    counts2 = np.where(np.hypot(g2, g3) < TRAINED_RADIUS, 60.0, 0.0)
+    n1 = 120
+    c1 = (np.arange(n1) + 0.5) / n1 * 2 * v - v
+    counts1 = np.where(np.abs(c1) < TRAINED_QD1, 60.0, 0.0)
+    seeds2 = [[0, -1, -1], [0, 1, -1], [0, -1, 1], [0, 1, 1], [-1, 1, 0], [-1, 0, -1]]
+
+    def joint(inputs, active):
+        d = len(inputs)
+        return {
+            "inputs": inputs, "x_min_rad_s": [-v] * d, "x_max_rad_s": [v] * d, "m_min": -4,
+            "m_max": 0, "mu": 5e-5, "theta": 6e-5, "active": active,
+            "coefficients": [0.001] * len(active),
+        }  # fmt: skip
+
+    return {
+        "format": "teleop-force-model",
+        "version": 1,
+        "robot": "omni",
+        "n_joints": 3,
+        "friction": {
+            "kind": "wn", "n_joints": 3, "a0": 2.0, "b0": 1.0, "edge_ring": True,
+            "joints": [
+                joint([0], [[0, -1], [0, 1], [-1, 1]]),
+                joint([1, 2], seeds2),
+                joint([1, 2], seeds2[:4]),
+            ],
+            "fallback": None,
+            "coverage": {
+                "config": {"cell_size_1d_rad_s": 0.05, "cells_per_axis_nd": 40,
+                           "smoothing_cells": 1.0, "untrained_density": 1.0,
+                           "trained_density": 20.0},
+                "grids": [
+                    {"inputs": [0], "x_min_rad_s": [-v], "x_max_rad_s": [v],
+                     "counts": counts1.tolist()},
+                    {"inputs": [1, 2], "x_min_rad_s": [-v, -v], "x_max_rad_s": [v, v],
+                     "counts": counts2.reshape(-1).tolist()},
+                    {"inputs": [1, 2], "x_min_rad_s": [-v, -v], "x_max_rad_s": [v, v],
+                     "counts": counts2.reshape(-1).tolist()},
+                ],
+            },
+        },  # fmt: skip
+        "notes": {"tissue_y_m": -0.1},
+    }
+
+
+class FakeSystem:
+    """Publishes the slave's streams at ~1 kHz and answers the service's queries."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.phase = "trained"  # or "untrained", "singular"
+        self.state = m.SafetyState.FOLLOWING
+        self.reason = ""
+        self.published = 0
+        self.late_ms_max = 0.0
+        self.requests: list[tuple[str, dict | None]] = []
+        self._stop = threading.Event()
+        self._pubs = {
+            name: session.declare_publisher(key)
+            for name, key in (
+                ("js", keys.measured_js(DEVICE)),
+                ("fe", keys.estimated_cf(DEVICE)),
+                ("cf", keys.measured_cf(DEVICE)),
+                ("st", keys.status(DEVICE)),
+                ("sp", keys.setpoint_js(MASTER)),
+            )
+        }
+        model = json.dumps(model_json())
+        stats = json.dumps({"estimates": 0, "dropped": 0, "malformed": 0, "adaptation": False})
+        self._queryables = [
+            session.declare_queryable(keys.service_model(DEVICE), self._answer(model)),
+            session.declare_queryable(keys.service_stats(DEVICE), self._answer(stats)),
+            session.declare_queryable(f"omni/{DEVICE}/service/control", self._answer('{"ok": true}')),
+        ]
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _answer(self, text: str):
+        def on_query(query: zenoh.Query) -> None:
+            payload = None if query.payload is None else json.loads(query.payload.to_string())
+            self.requests.append((str(query.key_expr), payload))
+            query.reply(query.key_expr, '{"ok": true}' if payload else text)
+
+        return on_query
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        for q in self._queryables:
+            q.undeclare()
+        for p in self._pubs.values():
+            p.undeclare()
+
+    def _run(self) -> None:
+        period = 1.0 / RATE_HZ
+        t0 = time.perf_counter()
+        k = 0
+        while not self._stop.is_set():
+            deadline = t0 + k * period
+            now = time.perf_counter()
+            if now < deadline:
+                time.sleep(deadline - now)
+            else:
+                self.late_ms_max = max(self.late_ms_max, (now - deadline) * 1e3)
+            self._publish(k, k * period)
+            k += 1
+
+    def _publish(self, k: int, t: float) -> None:
+        t_ns = time.time_ns()
+        amp = 2.3 if self.phase == "untrained" else 0.7
+        w = 2 * math.pi * 0.5
+        q = (0.4 * math.sin(0.3 * w * t), 0.6 + 0.25 * math.sin(w * t), 0.3 + 0.25 * math.cos(w * t))
+        qd = (
+            0.4 * 0.3 * w * math.cos(0.3 * w * t),
+            amp * math.cos(w * t),
+            -amp * math.sin(w * t),
+        )
+        tau = (0.01 * math.sin(w * t), 0.05 + 0.02 * math.cos(w * t), -0.03 + 0.01 * math.sin(w * t))
+        press = max(0.0, math.sin(0.4 * w * t))
+        f_true = (0.2 * math.sin(w * t), -1.5 * press, 0.3 * math.cos(w * t))
+        trained_23 = math.hypot(qd[1], qd[2]) < TRAINED_RADIUS
+        trained = (abs(qd[0]) < TRAINED_QD1, trained_23, trained_23)
+        f_est = f_true if self.phase != "singular" else (math.nan,) * 3
+        f_est = tuple(x + 0.05 * math.sin(7 * t + i) for i, x in enumerate(f_est))
+        self._pubs["js"].put(m.JointState(k % 2**32, t_ns, q, qd, tau).encode())
+        self._pubs["fe"].put(
+            m.ForceEstimate(
+                k % 2**32, t_ns, k % 2**32, f_est,
+                tuple(x * 0.1 for x in f_true), trained, tuple(1.0 if f else 0.0 for f in trained),
+                tau, tuple(x - 0.004 for x in tau),
+            ).encode()
+        )  # fmt: skip
+        self._pubs["cf"].put(m.ContactForce(k % 2**32, t_ns, f_true).encode())
+        if k % 10 == 0:
+            sp = (q[0] + 0.05, q[1] - 0.04, q[2] + 0.03)
+            self._pubs["sp"].put(m.JointSetpoint(k // 10, t_ns, sp).encode())
+        if k % 100 == 0:
+            self._pubs["st"].put(m.Status(k // 100, t_ns, self.state, self.reason).encode())
+        self.published += 1
+
+
+class GapCounter:
+    """A separate subscriber counting seq gaps of the slave's 1 kHz joint states."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.received = 0
+        self.lost = 0
+        self._last: int | None = None
+        self._lock = threading.Lock()
+        self._sub = session.declare_subscriber(keys.measured_js(DEVICE), self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        _, _, seq, _ = m.peek_header(sample.payload.to_bytes())
+        with self._lock:
+            if self._last is not None:
+                self.lost += m.sequence_gap(self._last, seq)
+            self._last = seq
+            self.received += 1
+
+    def reset(self) -> tuple[int, int]:
+        with self._lock:
+            result = (self.received, self.lost)
+            self.received = self.lost = 0
+            return result
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+def wait_for(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def port_open(port: int) -> bool:
+    with contextlib.closing(socket.socket()) as s:
+        s.settimeout(0.2)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory):
+    endpoint = listen_endpoint(free_tcp_port())
+    session = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
+    observer = open_session(
+        ZenohOptions(mode="peer", connect=(endpoint,), listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
+    )
+    models = tmp_path_factory.mktemp("models")
+    (models / "trained_disc.json").write_text(json.dumps(model_json()))
+    fake = FakeSystem(session)
+    gaps = GapCounter(observer)
+    http_port = free_tcp_port()
+    OUT.mkdir(exist_ok=True)
+    log = (OUT / "dashboard_stderr.log").open("wb")
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-m", "web", "--device", DEVICE, "--master-device", MASTER,
+            "--port", str(http_port), "--connect", endpoint, "--no-multicast",
+            "--models-dir", str(models),
+        ],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: port_open(http_port) or proc.poll() is not None, 30, "the dashboard's port")
+        assert proc.poll() is None, (OUT / "dashboard_stderr.log").read_text()
+        wait_for(lambda: len(list(session.info.peers_zid())) >= 2, 15, "the dashboard to join Zenoh")
+        fake.start()
+        yield {"fake": fake, "gaps": gaps, "url": f"http://127.0.0.1:{http_port}", "proc": proc, "models": models}
+    finally:
+        fake.stop()
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+        gaps.close()
+        observer.close()
+        session.close()
+
+
+@pytest.fixture(scope="module")
+def page(system):
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
+        try:
+            context = browser.new_context(viewport={"width": 1700, "height": 1100})
+            pg = context.new_page()
+            pg.goto(system["url"], wait_until="domcontentloaded", timeout=30_000)
+            yield pg
+        finally:
+            browser.close()
+
+
+# --------------------------------------------------------------------------- the test
+
+
+def uplot_pixels(page, index: int) -> bytes:
+    return page.locator(".uplot canvas").nth(index).screenshot()
+
+
+def fig4_src(page) -> str:
+    return page.locator("img").first.get_attribute("src") or ""
+
+
+def trust_state(page) -> str:
+    loc = page.locator("#tf-trust")
+    return (loc.get_attribute("data-trust") or "") if loc.count() else ""
+
+
+def test_dashboard_renders_updates_and_warns(system, page):
+    fake, gaps = system["fake"], system["gaps"]
+    t_start = time.perf_counter()
+    cpu0 = cpu_seconds(system["proc"].pid)
+
+    # Loads: the 3D canvas, the banner, all five uPlot charts and the Fig. 4 image.
+    page.wait_for_selector("canvas", timeout=20_000)
+    page.wait_for_function("document.querySelectorAll('.uplot canvas').length >= 5", timeout=20_000)
+    page.wait_for_function(
+        "document.querySelector('#tf-trust')?.dataset.trust === 'trusted'", timeout=20_000
+    )
+    assert "ESTIMATE TRUSTWORTHY" in page.inner_text("#tf-trust")
+    assert page.locator(".uplot").count() >= 5
+    gaps.reset()  # measure from here: dashboard open, subscribed, a browser attached
+
+    # Charts and Fig. 4 keep changing while data flows.
+    charts = page.locator(".uplot canvas").count()
+    before = [uplot_pixels(page, i) for i in range(charts)]
+    img_before = fig4_src(page)
+    time.sleep(1.2)
+    after = [uplot_pixels(page, i) for i in range(charts)]
+    changed = [a != b for a, b in zip(before, after, strict=True)]
+    assert all(changed), f"uPlot canvases that did not change: {[i for i, c in enumerate(changed) if not c]}"
+    assert img_before and fig4_src(page) != img_before, "Fig. 4 image did not update"
+
+    # The warning appears within a second or two of leaving the trained region.
+    fake.phase = "untrained"
+    t_left = time.perf_counter()
+    page.wait_for_function(
+        "document.querySelector('#tf-trust')?.dataset.trust === 'untrusted'", timeout=5_000
+    )
+    warn_latency = time.perf_counter() - t_left
+    assert "UNTRAINED GROUND" in page.inner_text("#tf-trust")
+    time.sleep(1.0)  # let the red trajectory show in Fig. 4
+    OUT.mkdir(exist_ok=True)
+    shot = OUT / "dashboard.png"
+    page.screenshot(path=str(shot))
+    from PIL import Image
+
+    pixels = np.asarray(Image.open(shot).convert("L"), dtype=float)
+    assert pixels.var() > 200.0, f"screenshot looks blank (variance {pixels.var():.1f})"
+
+    # Back on trained ground: green again; HOLDING and a singular Jacobian are shown.
+    fake.phase = "trained"
+    page.wait_for_function(
+        "document.querySelector('#tf-trust')?.dataset.trust === 'trusted'", timeout=5_000
+    )
+    fake.state, fake.reason = m.SafetyState.HOLDING, "force limit"
+    page.wait_for_function(
+        "document.querySelector('#tf-safety')?.dataset.alert === 'true'", timeout=5_000
+    )
+    assert "HOLDING" in page.inner_text("#tf-safety")
+    fake.phase = "singular"
+    page.wait_for_function(
+        "document.querySelector('#tf-trust')?.innerText.includes('SINGULAR')", timeout=5_000
+    )
+    fake.phase, fake.state, fake.reason = "trained", m.SafetyState.FOLLOWING, ""
+
+    # Load a model from the allowed --models-dir: the service gets {"load": <abs path>}.
+    page.get_by_role("button", name="Load model into the service").click()
+    wait_for(
+        lambda: any(p and "load" in p for _, p in fake.requests), 5, "the load request"
+    )
+    key, payload = next((k, p) for k, p in fake.requests if p and "load" in p)
+    assert key == keys.service_model(DEVICE)
+    assert Path(payload["load"]) == (system["models"] / "trained_disc.json").resolve()
+
+    # Loss of the 1 kHz stream at a separate subscriber, and the dashboard's own count.
+    received, lost = gaps.reset()
+    stats_text = page.inner_text("body")
+    row = next((line for line in stats_text.splitlines() if line.startswith("measured_js")), "")
+    elapsed = time.perf_counter() - t_start
+    cpu = cpu_seconds(system["proc"].pid) - cpu0
+    report = {
+        "observer_received": received,
+        "observer_lost": lost,
+        "dashboard_stats_row_measured_js": row,
+        "publisher_late_ms_max": round(fake.late_ms_max, 2),
+        "warning_latency_s": round(warn_latency, 3),
+        "dashboard_cpu_fraction_of_one_core": round(cpu / elapsed, 3),
+        "elapsed_s": round(elapsed, 1),
+    }
+    (OUT / "dashboard_loss.json").write_text(json.dumps(report, indent=1))
+    print(json.dumps(report, indent=1))
+    assert received > 0.5 * RATE_HZ
+    assert lost == 0, report
