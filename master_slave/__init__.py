@@ -1,0 +1,1 @@
+"""Master and slave Omni processes of the teleoperation demo (``python -m master_slave.*``)."""

@@ -34,7 +34,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from master_slave.operator import MOTIONS, OperatorConfig, ScriptedOperator
+from master_slave.operator import (
+    DEFAULT_SURFACE_Y_M,
+    MOTIONS,
+    OperatorConfig,
+    ScriptedOperator,
+)
 from master_slave.process_args import (
     RunConfig,
     add_process_arguments,
@@ -45,8 +50,13 @@ from master_slave.realtime import LoopConfig, RateLoop
 from teleop_force import keys, omni
 from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
-from teleop_force.service_runtime import StopSignal, log, write_json
-from teleop_force.service_stats import LatencyWindow, SequenceTracker
+from teleop_force.service_runtime import (
+    StopSignal,
+    log,
+    use_realtime_switch_interval,
+    write_json,
+)
+from teleop_force.service_stats import LatencyHistogram, SequenceTracker
 from teleop_force.service_transport import (
     declare_data_publisher,
     declare_json_queryable,
@@ -114,7 +124,7 @@ class FeedbackInbox:
         self.arrival_s: float | None = None
         self.malformed = 0
         self.seqs = SequenceTracker()
-        self.latency = LatencyWindow()
+        self.latency = LatencyHistogram()
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh callback: keep the newest estimate."""
@@ -210,7 +220,9 @@ class MasterProcess:
             entities += [sp_pub, js_pub]
             if config.haptic_feedback:
                 entities.append(
-                    declare_subscriber(session, keys.estimated_cf(config.slave), self.feedback.on_sample)
+                    declare_subscriber(
+                        session, keys.estimated_cf(config.slave), self.feedback.on_sample
+                    )
                 )
             entities.append(
                 declare_json_queryable(session, keys.process_stats(config.device, ROLE), self.stats)
@@ -224,7 +236,10 @@ class MasterProcess:
                 self.waited_for_subscriber_s = time.perf_counter() - started
                 if not matched and not self.stop.is_set():
                     log(ROLE, "no slave subscribed to the setpoints yet; starting anyway")
-            log(ROLE, f"{config.device} running at {config.loop.rate_hz:g} Hz ({config.operator.motion})")
+            log(
+                ROLE,
+                f"{config.device} running at {config.loop.rate_hz:g} Hz ({config.operator.motion})",
+            )
             self._control_loop(sp_pub, js_pub)
         finally:
             undeclare_all(*reversed(entities))
@@ -235,7 +250,11 @@ class MasterProcess:
     def _control_loop(self, sp_pub: zenoh.Publisher, js_pub: zenoh.Publisher) -> None:
         config = self.config
         plant, hand, loop, operator = self.plant, self.hand, self.loop, self.operator
-        n_ticks = None if config.run.duration_s is None else round(config.run.duration_s * config.loop.rate_hz)
+        n_ticks = (
+            None
+            if config.run.duration_s is None
+            else round(config.run.duration_s * config.loop.rate_hz)
+        )
         feedback_on = config.haptic_feedback
         scale = config.feedback_scale
         zero = np.zeros(3)
@@ -262,7 +281,7 @@ class MasterProcess:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Flags of ``python -m master_slave.master``."""
+    """Return the argument parser of ``python -m master_slave.master``."""
     parser = argparse.ArgumentParser(
         prog="python -m master_slave.master", description=__doc__.splitlines()[0]
     )
@@ -270,6 +289,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--slave", default="slave", help="device id of the slave (default slave)")
     parser.add_argument("--motion", choices=MOTIONS, default="palpation", help="operator script")
     parser.add_argument("--seed", type=int, default=0, help="seed of the operator's script")
+    parser.add_argument(
+        "--surface-y",
+        type=float,
+        default=DEFAULT_SURFACE_Y_M,
+        help="height of the slave's tissue the palpation script is written for [m]",
+    )
     parser.add_argument(
         "--haptic-feedback", action="store_true", help="display the estimated force on the master"
     )
@@ -281,6 +306,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the master process; return the exit status."""
     args = build_parser().parse_args(argv)
     stop = StopSignal().install()
+    use_realtime_switch_interval()
     try:
         run = run_config_from_args(args)
         config = MasterConfig(
@@ -288,7 +314,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             slave=args.slave,
             loop=loop_config_from_args(args),
             run=run,
-            operator=OperatorConfig(motion=args.motion, seed=args.seed, duration_s=run.duration_s),
+            operator=OperatorConfig(
+                motion=args.motion,
+                seed=args.seed,
+                duration_s=run.duration_s,
+                surface_y_m=args.surface_y,
+            ),
             haptic_feedback=args.haptic_feedback,
             feedback_scale=args.feedback_scale,
         )

@@ -66,10 +66,12 @@ class OperatorConfig:
         ):
             raise ConfigurationError(f"duration_s must be > 0, got {self.duration_s}")
         if not -0.15 < self.surface_y_m < 0.05:
-            raise ConfigurationError(f"surface_y_m must be in (-0.15, 0.05), got {self.surface_y_m}")
+            raise ConfigurationError(
+                f"surface_y_m must be in (-0.15, 0.05), got {self.surface_y_m}"
+            )
 
     def trajectory(self) -> Trajectory:
-        """The joint reference of the hand."""
+        """Return the joint reference of the hand."""
         if self.motion == "random":
             return teleoperation_trajectory(self.seed)
         length = UNBOUNDED_SCRIPT_S if self.duration_s is None else self.duration_s + 10.0

@@ -45,14 +45,18 @@ def add_process_arguments(
     """Add ``--device --duration --rate-hz --spin-us --wait-subscribers --stats-json`` + Zenoh."""
     parser.add_argument("--device", default=device, help=f"device id (default {device})")
     parser.add_argument(
-        "--duration", type=float, default=None, metavar="S", help="run S seconds (default: until Ctrl-C)"
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="run S seconds (default: until Ctrl-C)",
     )
     parser.add_argument("--rate-hz", type=float, default=1000.0, help="control rate (default 1000)")
     parser.add_argument(
         "--spin-us",
         type=float,
-        default=150.0,
-        help="busy-wait this long before each deadline instead of sleeping (default 150)",
+        default=50.0,
+        help="busy-wait this long before each deadline instead of sleeping (default 50)",
     )
     parser.add_argument(
         "--wait-subscribers",
@@ -63,18 +67,21 @@ def add_process_arguments(
         f"(default {wait_subscribers_s:g}; 0: start at once)",
     )
     parser.add_argument(
-        "--stats-json", default=None, metavar="PATH", help="write the final statistics as JSON (- = stdout)"
+        "--stats-json",
+        default=None,
+        metavar="PATH",
+        help="write the final statistics as JSON (- = stdout)",
     )
     add_zenoh_arguments(parser)
 
 
 def loop_config_from_args(args: argparse.Namespace) -> LoopConfig:
-    """The :class:`LoopConfig` of the parsed flags."""
+    """Return the :class:`LoopConfig` of the parsed flags."""
     return LoopConfig(rate_hz=args.rate_hz, spin_s=args.spin_us * 1e-6)
 
 
 def run_config_from_args(args: argparse.Namespace) -> RunConfig:
-    """The :class:`RunConfig` of the parsed flags."""
+    """Return the :class:`RunConfig` of the parsed flags."""
     return RunConfig(
         duration_s=args.duration,
         wait_subscribers_s=args.wait_subscribers,

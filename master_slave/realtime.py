@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.service_stats import LatencyWindow
+from teleop_force.service_stats import LatencyHistogram
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class LoopConfig:
     """
 
     rate_hz: float = 1000.0
-    spin_s: float = 150e-6
+    spin_s: float = 50e-6
     max_lag_s: float = 0.1
 
     def __post_init__(self) -> None:
@@ -70,7 +70,7 @@ class RateLoop:
         self.tick = -1
         self.overruns = 0
         self.resyncs = 0
-        self.lateness = LatencyWindow(capacity=1 << 16)
+        self.lateness = LatencyHistogram()
         self._period_s = self.config.period_s
         self._period_ns = self.config.period_ns
         self._start_s = 0.0

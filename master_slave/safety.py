@@ -83,18 +83,23 @@ class SafetyMonitor:
         fresh = age_s <= self.config.stale_s
         if self.state == SafetyState.FOLLOWING:
             if not master_alive:
-                return self._enter(SafetyState.HOLDING, "master liveliness token lost", setpoints_received)
+                return self._enter(
+                    SafetyState.HOLDING, "master liveliness token lost", setpoints_received
+                )
             if not fresh:
                 return self._enter(
                     SafetyState.HOLDING,
-                    f"master setpoint stale: {age_s * 1e3:.1f} ms > {self.config.stale_s * 1e3:g} ms",
+                    f"master setpoint stale: {age_s * 1e3:.1f} ms "
+                    f"> {self.config.stale_s * 1e3:g} ms",
                     setpoints_received,
                 )
             return SafetyDecision(self.state, self.reason, False)
         if self.state in (SafetyState.STARTING, SafetyState.HOLDING):
             new = setpoints_received - self._count_at_hold
             if master_alive and fresh and new >= self.config.resume_count:
-                return self._enter(SafetyState.FOLLOWING, "following the master", setpoints_received)
+                return self._enter(
+                    SafetyState.FOLLOWING, "following the master", setpoints_received
+                )
         return SafetyDecision(self.state, self.reason, False)
 
     def stop(self, reason: str) -> SafetyDecision:

@@ -52,8 +52,13 @@ from master_slave.safety import SafetyConfig, SafetyMonitor
 from teleop_force import keys
 from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
-from teleop_force.service_runtime import StopSignal, log, write_json
-from teleop_force.service_stats import LatencyWindow, SequenceTracker
+from teleop_force.service_runtime import (
+    StopSignal,
+    log,
+    use_realtime_switch_interval,
+    write_json,
+)
+from teleop_force.service_stats import LatencyHistogram, SequenceTracker
 from teleop_force.service_transport import (
     declare_data_publisher,
     declare_json_queryable,
@@ -126,7 +131,7 @@ class SetpointInbox:
         self.malformed = 0
         self.last_malformed = ""
         self.seqs = SequenceTracker()
-        self.latency = LatencyWindow()
+        self.latency = LatencyHistogram()
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh callback: decode, check, account for and keep one setpoint."""
@@ -193,7 +198,9 @@ class SlaveProcess:
         self.config = config
         self.options = options
         self.stop = stop
-        contact = None if config.surface_y_m is None else PlaneContact.horizontal(config.surface_y_m)
+        contact = (
+            None if config.surface_y_m is None else PlaneContact.horizontal(config.surface_y_m)
+        )
         surface = DEFAULT_SURFACE_Y_M if config.surface_y_m is None else config.surface_y_m
         self.plant = SimulatedOmni(
             PlantConfig(control_period_s=config.loop.period_s),
@@ -263,7 +270,10 @@ class SlaveProcess:
                 if not matched and not self.stop.is_set():
                     log(ROLE, "no subscriber for the joint states yet; starting anyway")
             self._publish_status(time.perf_counter(), force=True)
-            log(ROLE, f"{config.device} running at {config.loop.rate_hz:g} Hz, following {config.master}")
+            log(
+                ROLE,
+                f"{config.device} running at {config.loop.rate_hz:g} Hz, following {config.master}",
+            )
             self._control_loop(js_pub, cf_pub)
             self.safety.stop("slave stopped")
             self._publish_status(time.perf_counter(), force=True)
@@ -276,7 +286,11 @@ class SlaveProcess:
     def _control_loop(self, js_pub: zenoh.Publisher, cf_pub: zenoh.Publisher) -> None:
         config = self.config
         plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
-        n_ticks = None if config.run.duration_s is None else round(config.run.duration_s * config.loop.rate_hz)
+        n_ticks = (
+            None
+            if config.run.duration_s is None
+            else round(config.run.duration_s * config.loop.rate_hz)
+        )
         max_step = config.max_speed_rad_s * config.loop.period_s
         damping = np.array(config.hold_damping_nms_per_rad)
         hold_q = plant.measured_q_rad()
@@ -327,7 +341,9 @@ class SlaveProcess:
             log(ROLE, f"HOLDING: {reason}")
 
     def _publish_status(self, now_s: float, force: bool = False) -> None:
-        if self._status_pub is None or (not force and now_s - self._last_status_s < STATUS_PERIOD_S):
+        if self._status_pub is None or (
+            not force and now_s - self._last_status_s < STATUS_PERIOD_S
+        ):
             return
         status = m.Status(self._status_seq, time.time_ns(), self.safety.state, self.safety.reason)
         put(self._status_pub, status.encode())
@@ -336,15 +352,26 @@ class SlaveProcess:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Flags of ``python -m master_slave.slave``."""
+    """Return the argument parser of ``python -m master_slave.slave``."""
     parser = argparse.ArgumentParser(
         prog="python -m master_slave.slave", description=__doc__.splitlines()[0]
     )
     add_process_arguments(parser, device="slave", wait_subscribers_s=0.0)
-    parser.add_argument("--master", default="master", help="device id of the master (default master)")
-    parser.add_argument("--stale-ms", type=float, default=50.0, help="hold when the last setpoint is older (default 50)")
-    parser.add_argument("--max-speed", type=float, default=2.0, help="setpoint slew limit [rad/s] (default 2)")
-    parser.add_argument("--surface-y", type=float, default=DEFAULT_SURFACE_Y_M, help="tissue surface height [m]")
+    parser.add_argument(
+        "--master", default="master", help="device id of the master (default master)"
+    )
+    parser.add_argument(
+        "--stale-ms",
+        type=float,
+        default=50.0,
+        help="hold when the last setpoint is older (default 50)",
+    )
+    parser.add_argument(
+        "--max-speed", type=float, default=2.0, help="setpoint slew limit [rad/s] (default 2)"
+    )
+    parser.add_argument(
+        "--surface-y", type=float, default=DEFAULT_SURFACE_Y_M, help="tissue surface height [m]"
+    )
     parser.add_argument("--no-tissue", action="store_true", help="no soft tissue (free space)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the actuator noise")
     return parser
@@ -354,6 +381,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the slave process; return the exit status."""
     args = build_parser().parse_args(argv)
     stop = StopSignal().install()
+    use_realtime_switch_interval()
     try:
         config = SlaveConfig(
             device=args.device,

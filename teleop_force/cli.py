@@ -9,13 +9,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from teleop_force.errors import TeleopForceError
+from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.zenoh_session import add_zenoh_arguments
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -113,6 +115,105 @@ def _cmd_residual(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from teleop_force.demo import DemoConfig, run_demo
+    from teleop_force.service_accuracy import AccuracyConfig
+    from teleop_force.service_runtime import StopSignal
+
+    config = DemoConfig(
+        duration_s=args.duration,
+        headless=args.headless,
+        dashboard_port=args.port,
+        zenoh_port=args.zenoh_port,
+        model=None if args.model is None else Path(args.model),
+        record_dir=Path(args.record_dir),
+        summary_json=None if args.summary_json is None else Path(args.summary_json),
+        motion=args.motion,
+        haptic_feedback=args.haptic_feedback,
+        accuracy=AccuracyConfig(contact_threshold_n=args.contact_threshold),
+    )
+    if config.model is not None:
+        from teleop_force.dynamic_model import DynamicModel
+
+        DynamicModel.load(config.model)  # a bad model is bad input: exit 2 before starting
+    summary = run_demo(config, StopSignal().install())
+    return EXIT_OK if summary["ok"] else 1
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from teleop_force.mcap_session import SessionReader
+    from teleop_force.replay import ReplayConfig, primary_device, replay_session
+    from teleop_force.service import ForceService, ServiceConfig, load_model
+    from teleop_force.service_runtime import StopSignal
+    from teleop_force.zenoh_session import open_session, options_from_args
+
+    speed = 0.0 if args.fast else args.speed
+    config = ReplayConfig(
+        path=Path(args.recording),
+        speed=speed,
+        device=args.device,
+        wait_subscribers_s=0.0 if args.no_wait else args.wait_subscribers,
+    )
+    if args.record is not None and not args.with_service:
+        raise ConfigurationError("--record needs --with-service (the service records)")
+    reader = SessionReader(config.path)  # unreadable recording: exit 2 before opening zenoh
+    device = primary_device(reader, config.device)
+    model = model_path = None
+    if args.with_service:
+        recorded = reader.metadata.get("model", "")
+        chosen = args.model or (recorded if recorded and Path(recorded).is_file() else None)
+        model, model_path = load_model(None if chosen is None else Path(chosen))
+    stop = StopSignal().install()
+    session = open_session(options_from_args(args))
+    service = None
+    try:
+        if model is not None:
+            service_config = ServiceConfig(
+                device=device,
+                master=reader.metadata.get("master_device") or None,
+                record_path=None if args.record is None else Path(args.record),
+                source="replay",
+            )
+            service = ForceService(session, model, service_config, model_path=model_path).start()
+        _log(f"replaying {config.path} (device {device}) at "
+             + ("full speed" if speed == 0.0 else f"x{speed:g}"))
+        result = replay_session(session, config, stop)
+        payload: dict[str, Any] = result.to_dict()
+        if service is not None:
+            expected = result.published.get(f"omni/{device}/measured_js", 0)
+            deadline = time.perf_counter() + 30.0
+            while service.seqs.received < expected and time.perf_counter() < deadline:
+                time.sleep(0.01)
+            service.close()
+            payload["service"] = service.stats()
+    finally:
+        if service is not None:
+            service.close()
+        session.close()
+    total = sum(result.published.values())
+    _log(f"published {total} messages in {result.duration_s:.2f} s "
+         f"(recorded span {result.recorded_span_s:.2f} s)")
+    if service is not None:
+        stats = payload["service"]
+        _log(f"service: {stats['estimates']['published']} estimates, "
+             f"{stats['joint_states']['lost']} joint states lost"
+             + (f", recorded to {args.record}" if args.record else ""))
+    if args.json:
+        print(json.dumps(payload))
+    return EXIT_OK
+
+
+def _cmd_experiments(args: argparse.Namespace) -> int:
+    from teleop_force.experiments import ExperimentOptions, run_experiments
+
+    options = ExperimentOptions(args.duration, args.test_duration, args.seed)
+    results = run_experiments(Path(args.output), options, log=_log)
+    _log(f"report written to {Path(args.output) / 'report.md'}")
+    if args.json:
+        print(json.dumps(results, default=float))
+    return EXIT_OK
+
+
 def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
     def run(args: argparse.Namespace) -> int:
         _log(f"teleop-force {name}: not implemented yet")
@@ -156,9 +257,55 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
     p.set_defaults(run=_cmd_residual)
 
-    for name in ("demo", "replay", "bench"):
-        p = sub.add_parser(name)
-        p.set_defaults(run=_not_yet(name))
+    p = sub.add_parser("demo", help="master, slave, service and dashboard over Zenoh on loopback")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="run S seconds once everything is up (default: until Ctrl-C)")
+    p.add_argument("--headless", action="store_true", help="do not start the dashboard")
+    p.add_argument("--port", type=int, default=8080, metavar="P",
+                   help="dashboard HTTP port (default 8080)")
+    p.add_argument("--zenoh-port", type=int, default=None, metavar="P",
+                   help="port of the Zenoh rendezvous endpoint on 127.0.0.1 (default: a free one)")
+    p.add_argument("--model", default=None, help="model JSON (default: the shipped omni_sim.json)")
+    p.add_argument("--record-dir", default="recordings", help="where the session is recorded")
+    p.add_argument("--summary-json", default=None, metavar="PATH",
+                   help="write the final summary as JSON")
+    p.add_argument("--motion", choices=("palpation", "random"), default="palpation",
+                   help="what the simulated operator does with the master")
+    p.add_argument("--haptic-feedback", action="store_true",
+                   help="feed the estimated force back to the master")
+    p.add_argument("--contact-threshold", type=float, default=0.1, metavar="N",
+                   help="true force above which a sample counts as contact (default 0.1 N)")
+    p.set_defaults(run=_cmd_demo)
+
+    p = sub.add_parser("replay", help="publish a recorded session over Zenoh as if live")
+    p.add_argument("recording", help="session .mcap")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="time scale: 2 = twice as fast, 0 = as fast as possible (default 1)")
+    p.add_argument("--fast", action="store_true", help="as fast as possible (same as --speed 0)")
+    p.add_argument("--device", default=None, help="primary device (default: from the recording)")
+    p.add_argument("--with-service", action="store_true",
+                   help="run the force-estimation service in this process on the replayed stream")
+    p.add_argument("--model", default=None,
+                   help="model for --with-service (default: the recording's, else the shipped one)")
+    p.add_argument("--record", default=None, metavar="PATH",
+                   help="with --with-service: record the replayed stream and the new estimates")
+    p.add_argument("--wait-subscribers", type=float, default=10.0, metavar="S",
+                   help="wait up to S s for a subscriber of the joint states before starting")
+    p.add_argument("--no-wait", action="store_true", help="start at once")
+    p.add_argument("--json", action="store_true", help="print what was published as JSON")
+    add_zenoh_arguments(p)
+    p.set_defaults(run=_cmd_replay)
+
+    p = sub.add_parser("bench")
+    p.set_defaults(run=_not_yet("bench"))
+
+    p = sub.add_parser("experiments", help="reproduce the paper's experiments on the simulated Omni")
+    p.add_argument("-o", "--output", required=True, help="folder for report.md, report.json and figures")
+    p.add_argument("--duration", type=float, default=240.0, help="training session length [s] (paper: 240)")
+    p.add_argument("--test-duration", type=float, default=60.0, help="test session length [s]")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_cmd_experiments)
     return parser
 
 

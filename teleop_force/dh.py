@@ -52,6 +52,7 @@ class DHLink:
         mass_kg: Mass (>= 0; 0 for a massless link).
         com_m: Centre of mass in the link's DH frame.
         inertia_kgm2: Rotational inertia about the centre of mass (3 x 3, symmetric).
+
     """
 
     mass_kg: float = 0.0
@@ -77,7 +78,7 @@ class DHLink:
         object.__setattr__(self, "inertia_kgm2", tuple(tuple(float(x) for x in r) for r in inertia))
 
     def to_pinocchio(self) -> pin.Inertia:
-        """The link's spatial inertia about its DH frame origin."""
+        """Return the link's spatial inertia about its DH frame origin."""
         return pin.Inertia(
             float(self.mass_kg), np.asarray(self.com_m), np.asarray(self.inertia_kgm2)
         )
@@ -95,6 +96,7 @@ class DHRow:
             when revolute).
         joint_type: ``revolute`` or ``prismatic``.
         link: Nominal inertia of the link this joint moves.
+
     """
 
     alpha_rad: float
@@ -167,10 +169,12 @@ def build_dh_model(
         joint_names: Pinocchio joint names (default ``joint_1``...).
         base: Pose of DH frame 0 in the base frame (4 x 4, default identity).
         name: Model name.
+
     """
     if not rows:
         raise ModelError("a DH table needs at least one row")
-    names = list(joint_names) if joint_names is not None else [f"joint_{i + 1}" for i in range(len(rows))]
+    default_names = [f"joint_{i + 1}" for i in range(len(rows))]
+    names = list(joint_names) if joint_names is not None else default_names
     if len(names) != len(rows) or len(set(names)) != len(names):
         raise ModelError(f"need {len(rows)} distinct joint names, got {names}")
     gravity = np.asarray(gravity_mps2, dtype=float)

@@ -11,10 +11,9 @@ coordinates); model coordinates are the dVRK DH joint values. With
 in the project, ``tau_file = T^T tau_dvrk``. ``q3`` in the file is the absolute elbow angle
 (the parallelogram), and joint 4's cable angle ``0.6697 (q2 - q3) + q4`` couples it to 2 and 3.
 
-Gravity is along ``-y`` of DH frame 0 (the MTM base frame): of the six axis directions it is
-the one whose identified model fits the training torques best, by far (see
-``docs/robots.md``); the outer yaw axis ``z0`` is then horizontal... no: see
-:data:`GRAVITY_MPS2` for the measured choice.
+Gravity is along ``-z0`` of DH frame 0 (the MTM base frame: ``z0`` is the outer yaw axis,
+vertical, pointing up). Of the six axis directions it is the one whose identified model fits
+the training torques of joints 2 and 3 (the gravity-loaded ones) best (see ``docs/robots.md``).
 
 Link inertias are not published with the data: the nominal links are light placeholders
 (identification finds the base parameters, the nominal values only fill the unidentifiable
@@ -31,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import butter, filtfilt
 
 from teleop_force.dh import DHLink, DHRow, build_dh_model
 from teleop_force.errors import DataError
@@ -48,7 +48,7 @@ CABLE_RATIO = 0.6697
 PARALLELOGRAM_CABLE_COUPLING = np.array(
     [[1.0, 0.0, 0.0], [-1.0, 1.0, 0.0], [CABLE_RATIO, -CABLE_RATIO, 1.0]]
 )
-GRAVITY_MPS2 = (0.0, -9.81, 0.0)
+GRAVITY_MPS2 = (0.0, 0.0, -9.81)
 SAMPLE_RATE_HZ = 200.0
 #: Columns of a native file: q1..q7, qd1..qd7, tau1..tau7.
 NATIVE_COLUMNS = 3 * N_JOINTS
@@ -71,7 +71,7 @@ FRICTION_INPUTS = ((0,), (1, 2), (1, 2), (1, 2, 3), (4,), (5,), (6,))
 
 
 def dh_rows() -> tuple[DHRow, ...]:
-    """The MTM's standard DH table (dVRK joint values), with light nominal links."""
+    """Return the MTM's standard DH table (dVRK joint values), with light nominal links."""
     half = np.pi / 2
     table = (
         (half, 0.0, 0.0, -half),
@@ -109,7 +109,9 @@ def mtm_coupling() -> np.ndarray:
     return coupling
 
 
-def dvrk_mtm_description(gravity_mps2: tuple[float, float, float] = GRAVITY_MPS2) -> RobotDescription:
+def dvrk_mtm_description(
+    gravity_mps2: tuple[float, float, float] = GRAVITY_MPS2,
+) -> RobotDescription:
     """Return the built-in dVRK MTM description (motor = file coordinates)."""
     model = build_dh_model(
         dh_rows(),
@@ -137,33 +139,50 @@ def dvrk_mtm_description(gravity_mps2: tuple[float, float, float] = GRAVITY_MPS2
 
 @dataclass(frozen=True, eq=False)
 class MtmTrajectory:
-    """A native MTM file after dropping repeated rows.
+    """A native MTM file: its distinct rows and the recording the project fits.
 
     Attributes:
-        recording: Time (``row / 200`` s of the kept rows), angles and torques, file
-            coordinates.
-        qd_rad_s: The file's velocity columns for the kept rows.
+        recording: The samples on the uniform 200 Hz grid ``t = row / 200`` from the first to
+            the last distinct row, file coordinates: angles and torques of the distinct rows,
+            linear in time across the dropped ones; the angles low-passed without phase shift
+            at ``smoothing_hz`` (see :func:`read_mtm_csv`).
+        kept_rows: 0-based row numbers of the distinct rows.
+        q_file_rad, qd_file_rad_s, tau_file_nm: The file's columns at those rows.
         total_rows: Rows in the file.
         repeated_rows: Rows dropped because their joint state (angles and velocities)
             repeated the previous row's (asynchronous logging).
+        smoothing_hz: Cut-off of the angle smoothing (``None``: none).
+
     """
 
     recording: Recording
-    qd_rad_s: np.ndarray
+    kept_rows: np.ndarray
+    q_file_rad: np.ndarray
+    qd_file_rad_s: np.ndarray
+    tau_file_nm: np.ndarray
     total_rows: int
     repeated_rows: int
+    smoothing_hz: float | None
 
     def __post_init__(self) -> None:
-        if self.qd_rad_s.shape != self.recording.q_rad.shape:
-            raise DataError("velocity and angle arrays differ in shape", path=self.recording.source)
-        if not 0 <= self.repeated_rows < self.total_rows:
-            raise DataError("repeated row count out of range", path=self.recording.source)
+        n = self.kept_rows.size
+        for name in ("q_file_rad", "qd_file_rad_s", "tau_file_nm"):
+            if getattr(self, name).shape != (n, N_JOINTS):
+                raise DataError(f"{name} must be ({n}, {N_JOINTS})", path=self.recording.source)
+        if self.repeated_rows != self.total_rows - n:
+            raise DataError("kept and repeated rows do not add up", path=self.recording.source)
 
     def note(self) -> str:
-        """One line telling what was dropped."""
+        """One line telling what was dropped and how the angles were conditioned."""
+        smoothing = (
+            f"; angles smoothed at {self.smoothing_hz:g} Hz without phase shift"
+            if self.smoothing_hz
+            else ""
+        )
         return (
             f"{self.recording.source}: dropped {self.repeated_rows} of {self.total_rows} rows "
-            f"({self.repeated_rows / self.total_rows:.1%}) repeating the previous joint state"
+            f"({self.repeated_rows / self.total_rows:.1%}) repeating the previous joint state; "
+            f"{self.recording.n_samples} samples on the 200 Hz grid{smoothing}"
         )
 
 
@@ -172,55 +191,105 @@ def looks_like_mtm_csv(first_line: str) -> bool:
     cells = first_line.strip().split(",")
     if len(cells) != NATIVE_COLUMNS:
         return False
-    try:
-        [float(c) for c in cells]
-    except ValueError:
-        return False
-    return True
+    return all(_is_float(c) for c in cells)
 
 
-def read_mtm_csv(path: str | os.PathLike[str]) -> MtmTrajectory:
+#: Default zero-phase smoothing of the logged angles [Hz] (the excitation is below 1 Hz).
+DEFAULT_SMOOTHING_HZ = 5.0
+_SMOOTHING_ORDER = 4
+
+
+def read_mtm_csv(
+    path: str | os.PathLike[str], smoothing_hz: float | None = DEFAULT_SMOOTHING_HZ
+) -> MtmTrajectory:
     """Read a native ``mtm_traj_*_results.csv`` (no header, 21 columns, 200 Hz).
 
     Rows whose angles and velocities equal the previous row's are stale samples of the
-    asynchronous logger and are dropped (differentiating them would give zero-velocity
-    spikes); the time of a kept row stays ``row / 200``.
+    asynchronous logger and are dropped. The logger also read the angles at jittered
+    instants (consecutive differences scatter far more than the logged velocity allows),
+    which the project's momentum-form regressor would differentiate into noise, and the
+    project's first-order filters assume steady sampling. So the distinct rows are put back
+    on the uniform 200 Hz grid (linear in time across the dropped rows) and the angles are
+    low-passed forward and backward (4th-order Butterworth, no phase shift, so no bias) at
+    ``smoothing_hz``, well above the excitation (below 1 Hz) and below the jitter. The
+    torques are left as logged: the project filters them itself.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"cannot read file: {exc}", path=path) from None
-    lines = [line for line in text.splitlines() if line.strip()]
-    if not lines:
-        raise DataError("empty file: expected rows of 21 numbers (q1..q7, qd1..qd7, tau1..tau7)", path=path)
-    table = np.empty((len(lines), NATIVE_COLUMNS))
-    for i, line in enumerate(lines):
-        cells = line.split(",")
-        if len(cells) != NATIVE_COLUMNS:
-            raise DataError(f"{len(cells)} cells, a native MTM row has {NATIVE_COLUMNS}", path=path, row=i + 1)
-        try:
-            table[i] = [float(c) for c in cells]
-        except ValueError:
-            bad = next(j for j, c in enumerate(cells) if not _is_float(c))
-            raise DataError(f"not a number: {cells[bad].strip()!r}", path=path, row=i + 1, column=_column_name(bad)) from None
-    finite = np.isfinite(table)
-    if not finite.all():
-        row, col = np.argwhere(~finite)[0]
-        raise DataError("not finite", path=path, row=int(row) + 1, column=_column_name(int(col)))
+    if smoothing_hz is not None and not 0 < smoothing_hz < SAMPLE_RATE_HZ / 2:
+        raise DataError(
+            f"smoothing_hz must be in (0, {SAMPLE_RATE_HZ / 2:g}), got {smoothing_hz}", path=path
+        )
+    table = _read_table(path)
     state = table[:, : 2 * N_JOINTS]
     repeated = np.zeros(len(table), dtype=bool)
     repeated[1:] = np.all(state[1:] == state[:-1], axis=1)
     kept = np.flatnonzero(~repeated)
     if kept.size < 3:
         raise DataError(f"only {kept.size} distinct rows", path=path)
-    recording = Recording(
-        t_s=kept / SAMPLE_RATE_HZ,
-        q_rad=table[kept, :N_JOINTS],
-        tau_nm=table[kept, 2 * N_JOINTS :],
-        source=path,
+    t_kept = kept / SAMPLE_RATE_HZ
+    grid_rows = np.arange(kept[0], kept[-1] + 1)
+    t_grid = grid_rows / SAMPLE_RATE_HZ
+    q_grid = _interpolate(t_grid, t_kept, table[kept, :N_JOINTS])
+    tau_grid = _interpolate(t_grid, t_kept, table[kept, 2 * N_JOINTS :])
+    if smoothing_hz is not None:
+        if t_grid.size <= 3 * (2 * _SMOOTHING_ORDER + 1):
+            raise DataError(f"only {t_grid.size} samples: too short to smooth", path=path)
+        b, a = butter(_SMOOTHING_ORDER, smoothing_hz / (SAMPLE_RATE_HZ / 2))
+        # Pad with one second of odd reflection: scipy's default (15 samples) leaves start
+        # and end transients that the momentum derivative turns into torque spikes.
+        padding = min(t_grid.size - 1, int(SAMPLE_RATE_HZ))
+        q_grid = filtfilt(b, a, q_grid, axis=0, padlen=padding)
+    recording = Recording(t_s=t_grid, q_rad=q_grid, tau_nm=tau_grid, source=path)
+    return MtmTrajectory(
+        recording,
+        kept,
+        table[kept, :N_JOINTS],
+        table[kept, N_JOINTS : 2 * N_JOINTS],
+        table[kept, 2 * N_JOINTS :],
+        len(table),
+        int(repeated.sum()),
+        smoothing_hz,
     )
-    return MtmTrajectory(recording, table[kept, N_JOINTS : 2 * N_JOINTS], len(table), int(repeated.sum()))
+
+
+def _interpolate(t_new: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.stack([np.interp(t_new, t, x[:, j]) for j in range(x.shape[1])], axis=1)
+
+
+def _read_table(path: Path) -> np.ndarray:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read file: {exc}", path=path) from None
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise DataError(
+            "empty file: expected rows of 21 numbers (q1..q7, qd1..qd7, tau1..tau7)", path=path
+        )
+    table = np.empty((len(lines), NATIVE_COLUMNS))
+    for i, line in enumerate(lines):
+        cells = line.split(",")
+        if len(cells) != NATIVE_COLUMNS:
+            raise DataError(
+                f"{len(cells)} cells, a native MTM row has {NATIVE_COLUMNS}", path=path, row=i + 1
+            )
+        try:
+            table[i] = [float(c) for c in cells]
+        except ValueError:
+            bad = next(j for j, c in enumerate(cells) if not _is_float(c))
+            raise DataError(
+                f"not a number: {cells[bad].strip()!r}",
+                path=path,
+                row=i + 1,
+                column=_column_name(bad),
+            ) from None
+    finite = np.isfinite(table)
+    if not finite.all():
+        row, col = np.argwhere(~finite)[0]
+        raise DataError("not finite", path=path, row=int(row) + 1, column=_column_name(int(col)))
+    return table
 
 
 def _is_float(cell: str) -> bool:

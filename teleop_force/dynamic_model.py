@@ -67,9 +67,9 @@ class DynamicModel:
         """The robot description this model was identified for."""
         return resolve_robot(self.robot, self.n_joints)
 
-    def friction_torque(self, qd: np.ndarray) -> np.ndarray:
-        """Friction torque the model predicts at velocities ``qd`` (N x n), coverage-aware."""
-        blended = getattr(self.friction, "blended_torque", None)
+    def friction_torque(self, qd: np.ndarray, blend: bool = True) -> np.ndarray:
+        """Friction torque at velocities ``qd`` (N x n); coverage-aware unless ``blend=False``."""
+        blended = getattr(self.friction, "blended_torque", None) if blend else None
         return blended(qd) if blended is not None else self.friction.torque(qd)
 
     def effects_torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -79,11 +79,13 @@ class DynamicModel:
             total += effect.torque(t_s, q, qd, tau)
         return total
 
-    def predict_filtered_torque(self, signals: FilteredSignals, tau_nm: np.ndarray) -> np.ndarray:
+    def predict_filtered_torque(
+        self, signals: FilteredSignals, tau_nm: np.ndarray, blend: bool = True
+    ) -> np.ndarray:
         """The filtered model torque ``tau_hat_L`` of the paper's eq. (10) for a recording."""
         t = signals.t_s
         rigid = np.einsum("kjp,p->kj", signals.rigid_regressor, self.base_values)
-        other = self.friction_torque(signals.qd_rad_s) + self.offsets_nm[None, :]
+        other = self.friction_torque(signals.qd_rad_s, blend) + self.offsets_nm[None, :]
         if self.effects:
             other = other + self.effects_torque(t, signals.q_rad, signals.qd_rad_s, tau_nm)
         return rigid + lowpass_batch(other, t, self.filter_config.cutoff_hz)

@@ -58,8 +58,13 @@ from teleop_force.estimation import ForceEstimator
 from teleop_force.mcap_session import SessionWriter
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.service_adaptation import OnlineAdaptation, adaptation_unavailable_reason
-from teleop_force.service_runtime import StopSignal, log, write_json
-from teleop_force.service_stats import LatencyWindow, RateMeter, SequenceTracker
+from teleop_force.service_runtime import (
+    StopSignal,
+    log,
+    use_realtime_switch_interval,
+    write_json,
+)
+from teleop_force.service_stats import LatencyHistogram, RateMeter, SequenceTracker
 from teleop_force.service_transport import (
     declare_data_publisher,
     declare_json_queryable,
@@ -137,8 +142,8 @@ class ForceService:
         self._seq = 0
         self._started_s = time.perf_counter()
         self.seqs = SequenceTracker()
-        self.latency = LatencyWindow()
-        self.processing = LatencyWindow()
+        self.latency = LatencyHistogram()
+        self.processing = LatencyHistogram()
         self.rate = RateMeter()
         self.published = 0
         self.singular = 0
@@ -154,10 +159,10 @@ class ForceService:
         self.adapting = False
         self.adaptation_note = adaptation_unavailable_reason(self.estimator) or ""
         self.writer: SessionWriter | None = None
-        if self.config.record_path is not None:
-            self.writer = self._open_writer(self.config.record_path)
         if self.config.adapt:
             self.set_adaptation(True)
+        if self.config.record_path is not None:
+            self.writer = self._open_writer(self.config.record_path)
 
     # -- lifetime -----------------------------------------------------------------------------
 
@@ -194,20 +199,28 @@ class ForceService:
         self._entities.append(
             declare_json_queryable(session, keys.service_model(device), self.model_dict)
         )
-        self._entities.append(declare_json_queryable(session, keys.service_stats(device), self.stats))
+        self._entities.append(
+            declare_json_queryable(session, keys.service_stats(device), self.stats)
+        )
         self._entities.append(declare_token(session, keys.alive(device, ROLE)))
         self._started_s = time.perf_counter()
         return self
 
     def close(self) -> None:
-        """Undeclare everything, then close the recording (idempotent)."""
+        """Stop processing, undeclare everything, then close the recording (idempotent).
+
+        Callbacks estimate and publish only under the lock and only while not closed, so once
+        ``_closed`` is set no callback touches the publisher any more (a publisher must not be
+        undeclared while another thread publishes on it). Recording happens outside the lock;
+        the writer refuses writes once closed, which the callbacks then ignore.
+        """
+        with self._lock:
+            already = self._closed
+            self._closed = True
         entities, self._entities = self._entities, []
         undeclare_all(*reversed(entities))
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            if self.writer is not None:
+        if not already and self.writer is not None:
+            with self._lock:
                 self.writer.close()
 
     def __enter__(self) -> ForceService:
@@ -233,13 +246,17 @@ class ForceService:
         except MessageError as exc:
             self._count_malformed(key, exc)
             return
-        with self._lock:
-            if self._closed or self.writer is None:
-                return
-            try:
-                self.writer.write(key, message, arrival_ns)
-            except DataError as exc:  # e.g. a JointState on a status key
-                self._count_malformed_locked(key, exc)
+        self._record(key, message, arrival_ns)
+
+    def _record(self, key: str, message: m.Message, log_time_ns: int) -> None:
+        """Write one message to the recording (outside the processing lock)."""
+        if self.writer is None or self._closed:
+            return
+        try:
+            self.writer.write(key, message, log_time_ns)
+        except DataError as exc:  # e.g. a JointState on a status key, or closed meanwhile
+            if not self._closed:
+                self._count_malformed(key, exc)
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:
@@ -260,13 +277,18 @@ class ForceService:
         with self._lock:
             if self._closed:
                 return
-            self._estimate_locked(key, js, arrival_ns)
+            estimate = self._estimate_locked(js)
+        # Recorded after the estimate is out: the recording does not delay it.
+        self._record(key, js, arrival_ns)
+        if estimate is not None:
+            self._record(self._estimate_key, estimate, estimate.t_ns)
 
-    def _estimate_locked(self, key: str, js: m.JointState, arrival_ns: int) -> None:
+    def _estimate_locked(self, js: m.JointState) -> m.ForceEstimate | None:
+        """Estimate on one joint state and publish; return the published message."""
         started_s = time.perf_counter()
         event = self.seqs.observe(js.seq)
         if event.duplicate:
-            return
+            return None
         self.rate.tick()
         last = self._last_t_ns
         if (
@@ -284,8 +306,6 @@ class ForceService:
         t_s = (js.t_ns - self._t0_ns) * 1e-9
         q = np.array(js.q_rad)
         tau = np.array(js.effort_nm)
-        if self.writer is not None:
-            self.writer.write(key, js, arrival_ns)
         try:
             estimate = self.estimator.update(t_s, q, tau)
             if self.adapting and self.adaptation is not None:
@@ -304,7 +324,7 @@ class ForceService:
         except (DataError, MessageError) as exc:
             self.estimate_errors += 1
             self.last_error = str(exc)
-            return
+            return None
         assert self._publisher is not None
         put(self._publisher, message.encode())
         self._seq = (self._seq + 1) & SEQ_MASK
@@ -317,9 +337,8 @@ class ForceService:
         if bool(np.all(flags)):
             self.on_ground_all += 1
         self.last_estimate = message
-        if self.writer is not None:
-            self.writer.write(self._estimate_key, message, message.t_ns)
         self.processing.add(time.perf_counter() - started_s)
+        return message
 
     def _on_adapt(self, sample: zenoh.Sample) -> None:
         """``service/adapt`` control: payload ``on`` or ``off``."""
@@ -329,7 +348,9 @@ class ForceService:
             self._count_malformed(str(sample.key_expr), exc)
             return
         if text not in ("on", "off"):
-            self._count_malformed(str(sample.key_expr), ValueError(f"expected on/off, got {text!r}"))
+            self._count_malformed(
+                str(sample.key_expr), ValueError(f"expected on/off, got {text!r}")
+            )
             return
         try:
             self.set_adaptation(text == "on")
@@ -349,7 +370,7 @@ class ForceService:
             self.adapting = True
 
     def model_dict(self) -> dict[str, Any]:
-        """The model the estimator runs, as JSON (coefficients as adapted so far)."""
+        """Return the model the estimator runs, as JSON (coefficients as adapted so far)."""
         with self._lock:
             return self.model.to_dict()
 
@@ -419,7 +440,7 @@ def load_model(path: Path | None) -> tuple[DynamicModel, Path]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Flags of ``python -m teleop_force.service``."""
+    """Return the argument parser of ``python -m teleop_force.service``."""
     from teleop_force.zenoh_session import add_zenoh_arguments
 
     parser = argparse.ArgumentParser(
@@ -433,7 +454,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--record", type=Path, default=None, metavar="PATH", help="record to MCAP")
     parser.add_argument("--adapt", action="store_true", help="start with online WN adaptation on")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
-    parser.add_argument("--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)")
+    parser.add_argument(
+        "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
+    )
     add_zenoh_arguments(parser)
     return parser
 
@@ -442,6 +465,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the service until SIGINT / SIGTERM or ``--duration``; return the exit status."""
     args = build_parser().parse_args(argv)
     stop = StopSignal().install()
+    use_realtime_switch_interval()
     try:
         if args.duration is not None and not args.duration > 0:
             raise ConfigurationError(f"--duration must be > 0, got {args.duration}")
@@ -457,7 +481,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         service = ForceService(session, model, config, model_path=model_path)
         try:
             service.start()
-            log(ROLE, f"estimating on {config.device} with {model_path.name} ({model.friction.kind})")
+            log(
+                ROLE,
+                f"estimating on {config.device} with {model_path.name} ({model.friction.kind})",
+            )
             stop.wait(args.duration)
         finally:
             service.close()

@@ -4,10 +4,12 @@ When the service's model has a :class:`~teleop_force.friction.wavelet_network.Wa
 friction, :class:`OnlineAdaptation` feeds its :class:`~teleop_force.friction.adaptation.
 LyapunovAdapter` one sample at a time with the identifier's signals (see that module)::
 
-    p_L = L(M(q) qd_raw)                         filtered generalized momentum
-    u_L = L(tau)[k - lag] - L(-C^T qd + N + tau_spring + offsets)
+    q_v, qd = L_v(q), backward difference of q_v         pre-filtered angles and velocity
+    p_L = L(M(q_v) qd)                                   filtered generalized momentum
+    u_L = L(L_v(tau))[k - lag] - L(-C^T qd + N + tau_spring + offsets)
 
-computed here with the estimator's own rigid-body model, filter cut-offs and torque lag. The
+computed here exactly as :class:`~teleop_force.estimation.ForceEstimator` computes its terms
+(same pre-filter ``L_v``, cut-offs, torque lag and rigid-body model). The
 adapter updates the network's coefficients in place, so the estimator, which evaluates the
 same friction object, uses them from the next sample on. Adaptation assumes the arm moves
 *freely*: an external force is indistinguishable from friction and would be learnt as such,
@@ -52,11 +54,10 @@ class OnlineAdaptation:
         config = estimator.model.filter_config
         mid = 0.5 * (robot.description.q_min_rad + robot.description.q_max_rad)
         inertia = np.diag(robot.mass_matrix(mid))
-        self.adapter = LyapunovAdapter(
-            network, cutoff_hz=config.cutoff_hz, inertia_kgm2=inertia
-        )
+        self.adapter = LyapunovAdapter(network, cutoff_hz=config.cutoff_hz, inertia_kgm2=inertia)
         self._lag = config.torque_lag_samples
-        self._velocity = LowPass(config.velocity_cutoff_hz)
+        self._angle = LowPass(config.velocity_cutoff_hz)
+        self._torque_prefilter = LowPass(config.velocity_cutoff_hz)
         self._momentum = LowPass(config.cutoff_hz)
         self._torque = LowPass(config.cutoff_hz)
         self._rigid = LowPass(config.cutoff_hz)
@@ -67,31 +68,26 @@ class OnlineAdaptation:
 
     def reset(self) -> None:
         """Forget the signal states (a new stream begins); coefficients are kept."""
-        for f in (self._velocity, self._momentum, self._torque, self._rigid):
+        for f in (self._angle, self._torque_prefilter, self._momentum, self._torque, self._rigid):
             f.reset()
         self._t_prev = None
         self.adapter.reset()
 
     def update(self, t_s: float, q_rad: np.ndarray, tau_nm: np.ndarray) -> None:
         """Feed one sample (same inputs as :meth:`ForceEstimator.update`)."""
-        q = np.asarray(q_rad, dtype=float)
+        q_raw = np.asarray(q_rad, dtype=float)
         tau = np.asarray(tau_nm, dtype=float)
-        if self._t_prev is None:
+        dt = 1e-3 if self._t_prev is None else t_s - self._t_prev
+        if not dt > 0.0:
+            self.reset()
             dt = 1e-3
-            qd_raw = np.zeros_like(q)
-        else:
-            dt = t_s - self._t_prev
-            if not dt > 0.0:
-                self.reset()
-                dt = 1e-3
-                qd_raw = np.zeros_like(q)
-            else:
-                qd_raw = (q - self._q_prev) / dt
+        first = self._t_prev is None
+        q = self._angle.update(q_raw, dt).copy()
+        qd = np.zeros_like(q) if first else (q - self._q_prev) / dt
         self._t_prev = t_s
         self._q_prev = q
         robot = self.robot
-        qd = self._velocity.update(qd_raw, dt)
-        p_l = self._momentum.update(robot.momentum(q, qd_raw), dt)
+        p_l = self._momentum.update(robot.momentum(q, qd), dt)
         rigid = (
             robot.coriolis_transpose_gravity(q, qd)
             + robot.spring_torque(q, self.estimator.spring_stiffness)
@@ -99,7 +95,8 @@ class OnlineAdaptation:
         )
         rigid_l = self._rigid.update(rigid, dt)
         previous = self._torque.state
-        tau_now = self._torque.update(tau, dt)
+        previous = None if previous is None else previous.copy()
+        tau_now = self._torque.update(self._torque_prefilter.update(tau, dt), dt)
         tau_l = tau_now if (self._lag == 0 or previous is None) else previous
         self.last_error = self.adapter.step(qd, p_l, tau_l - rigid_l, dt)
         self.samples += 1

@@ -17,6 +17,15 @@ from typing import Any
 
 from teleop_force.errors import DataError
 
+#: GIL switch interval of the real-time processes [s]: a Zenoh callback waiting for the GIL
+#: held by a busy loop gets it within this time (Python's default is 5 ms).
+REALTIME_SWITCH_INTERVAL_S = 2e-4
+
+
+def use_realtime_switch_interval() -> None:
+    """Make GIL hand-overs between the loop and the Zenoh callback threads fast."""
+    sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
+
 
 class StopSignal:
     """A stop flag set by SIGINT / SIGTERM (once installed) or by :meth:`set`."""

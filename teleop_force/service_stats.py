@@ -7,7 +7,7 @@ the numbers are reproducible in tests::
     seqs = SequenceTracker()
     seqs.observe(7)            # first message
     seqs.observe(10)           # 8 and 9 are lost -> seqs.lost == 2
-    latency = LatencyWindow()
+    latency = LatencyHistogram()
     latency.add(0.4e-3)
     latency.summary_ms()       # {"p50": 0.4, "p99": 0.4, "max": 0.4, "count": 1}
 """
@@ -24,8 +24,6 @@ import numpy as np
 from teleop_force.errors import ConfigurationError
 from teleop_force.messages import sequence_gap
 
-#: Latencies kept for the percentiles: the last 2**17 samples, 131 s at 1 kHz.
-DEFAULT_LATENCY_CAPACITY: Final = 1 << 17
 #: A sequence number this far *behind* the last one (mod 2**32) is a restart, not a huge loss.
 RESTART_WINDOW: Final = 1 << 31
 
@@ -100,51 +98,61 @@ class SequenceTracker:
         }
 
 
-class LatencyWindow:
-    """The last ``capacity`` latencies [s] in a ring buffer, with percentiles on demand."""
+class LatencyHistogram:
+    """Latencies [s] in a log-spaced histogram: O(1) to add, cheap percentiles, whole run.
 
-    def __init__(self, capacity: int = DEFAULT_LATENCY_CAPACITY) -> None:
-        """Allocate the ring buffer."""
-        if capacity < 1:
-            raise ConfigurationError(f"capacity must be >= 1, got {capacity}")
-        self._values = np.zeros(int(capacity))
-        self._next = 0
+    Bins are ``bins_per_decade`` per factor of ten from ``min_s`` to ``max_s`` (values outside
+    go to the end bins), so a percentile is exact to the bin width (0.5 % by default) whatever
+    the number of samples, and computing one never stalls a real-time loop. The maximum and
+    the count are exact; negative values (clocks of two processes disagreeing) are counted in
+    :attr:`negative` and put in the lowest bin.
+    """
+
+    def __init__(self, min_s: float = 1e-7, max_s: float = 1e3, bins_per_decade: int = 200) -> None:
+        """Allocate the bins."""
+        if not (0.0 < min_s < max_s) or bins_per_decade < 1:
+            raise ConfigurationError("need 0 < min_s < max_s and bins_per_decade >= 1")
+        self._log_min = math.log10(min_s)
+        self._per_decade = float(bins_per_decade)
+        self._n_bins = math.ceil((math.log10(max_s) - self._log_min) * bins_per_decade)
+        self._counts = np.zeros(self._n_bins + 1, dtype=np.int64)
         self.count = 0
-        self.max_s = 0.0
+        self.negative = 0
+        self.max_s = -math.inf
 
     def add(self, latency_s: float) -> None:
         """Record one latency [s] (non-finite values are ignored)."""
         if not math.isfinite(latency_s):
             return
-        self._values[self._next] = latency_s
-        self._next = (self._next + 1) % self._values.size
+        if latency_s <= 0.0:
+            if latency_s < 0.0:
+                self.negative += 1
+            index = 0
+        else:
+            index = int((math.log10(latency_s) - self._log_min) * self._per_decade)
+            index = 0 if index < 0 else (self._n_bins if index > self._n_bins else index)
+        self._counts[index] += 1
         self.count += 1
         if latency_s > self.max_s:
             self.max_s = latency_s
 
-    def values_s(self) -> np.ndarray:
-        """The latencies currently held (at most ``capacity``), oldest first."""
-        if self.count < self._values.size:
-            return self._values[: self.count].copy()
-        return np.roll(self._values, -self._next)
-
     def percentile_s(self, q: float) -> float:
-        """The ``q``-th percentile (0..100) of the held latencies [s], NaN when empty."""
-        held = min(self.count, self._values.size)
-        if held == 0:
+        """Return the ``q``-th percentile (0..100) [s]: the geometric centre of its bin."""
+        if self.count == 0:
             return math.nan
-        return float(np.percentile(self._values[:held], q))
+        rank = min(self.count - 1, max(0, math.ceil(q / 100.0 * self.count) - 1))
+        index = int(np.searchsorted(np.cumsum(self._counts), rank, side="right"))
+        centre = 10.0 ** (self._log_min + (index + 0.5) / self._per_decade)
+        return min(centre, self.max_s)
 
     def summary_ms(self) -> dict[str, float | int | None]:
         """``{"p50", "p99", "max"}`` in milliseconds (``None`` when empty) and ``count``."""
-
-        def ms(value: float) -> float | None:
-            return None if math.isnan(value) else round(value * 1e3, 4)
-
+        if self.count == 0:
+            return {"p50": None, "p99": None, "max": None, "count": 0}
         return {
-            "p50": ms(self.percentile_s(50.0)),
-            "p99": ms(self.percentile_s(99.0)),
-            "max": ms(self.max_s) if self.count else None,
+            "p50": round(self.percentile_s(50.0) * 1e3, 4),
+            "p99": round(self.percentile_s(99.0) * 1e3, 4),
+            "max": round(self.max_s * 1e3, 4),
             "count": self.count,
         }
 
@@ -193,8 +201,7 @@ class RateMeter:
 
 
 __all__ = [
-    "DEFAULT_LATENCY_CAPACITY",
-    "LatencyWindow",
+    "LatencyHistogram",
     "RateMeter",
     "SequenceEvent",
     "SequenceTracker",

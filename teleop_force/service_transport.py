@@ -60,7 +60,9 @@ def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
     try:
         return session.liveliness().declare_token(key)
     except zenoh.ZError as exc:
-        raise TransportError(f"{key}: cannot declare liveliness token: {zenoh_error_text(exc)}") from None
+        raise TransportError(
+            f"{key}: cannot declare liveliness token: {zenoh_error_text(exc)}"
+        ) from None
 
 
 def declare_liveliness_subscriber(

@@ -20,7 +20,7 @@ from web.buffers import bin_mean
 from web.telemetry import FE_F, FE_TAU_EXT, FE_TAU_MODEL, FE_TAU_MOTOR, N_JOINTS, Telemetry
 
 AXIS_RGB: Final = ("#d93025", "#1e8e3e", "#1a73e8")
-PLOT_HEIGHT_PX: Final = 150
+PLOT_HEIGHT_PX: Final = 200
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,11 @@ def plot_frames(telemetry: Telemetry, window_s: float, n_bins: int) -> PlotFrame
     x, fe = bin_mean(est.t_s, est.values, t_start, end, n_bins)
     cf = telemetry.contact.window(t_start)
     _, truth = bin_mean(cf.t_s, cf.values, t_start, end, n_bins)
+    has_data = np.any(np.isfinite(fe), axis=1) | np.any(np.isfinite(truth), axis=1)
+    if not np.any(has_data):
+        return None
+    first = int(np.argmax(has_data))  # bins before the first sample are not sent
+    x, fe, truth = x[first:], fe[first:], truth[first:]
     return PlotFrames(
         t_end_s=t_end,
         x=x - t_end,
@@ -83,14 +88,36 @@ def plot_frames(telemetry: Telemetry, window_s: float, n_bins: int) -> PlotFrame
     )
 
 
+def uplot_safe(values: np.ndarray) -> np.ndarray:
+    """Make one auto-ranged series safe for uPlot, which cannot take NaN as a gap.
+
+    uPlot starts a series' min/max at its first non-null value, so a leading NaN (NaN is not
+    null) poisons the whole chart's range and nothing is drawn. Leading NaNs become the first
+    finite value; an all-NaN series becomes zeros. Interior NaNs are kept (uPlot bridges them).
+    """
+    v = np.array(values, dtype=float, copy=True)
+    finite = np.isfinite(v)
+    if not np.any(finite):
+        return np.zeros_like(v)
+    first = int(np.argmax(finite))
+    v[:first] = v[first]
+    return v
+
+
 def _series(
-    label: str, stroke: str, *, dash: Sequence[float] | None = None, width: float = 1.5
+    label: str,
+    stroke: str,
+    *,
+    dash: Sequence[float] | None = None,
+    width: float = 1.5,
+    show: bool = True,
 ) -> viser.uplot.Series:
     series: dict[str, Any] = {
         "label": label,
         "stroke": stroke,
         "width": width,
         "points": {"show": False},
+        "show": show,
     }
     if dash is not None:
         series["dash"] = tuple(dash)
@@ -110,23 +137,16 @@ class LivePlots:
             "x": {"time": False, "range": (-window_s, 0.0)},
             "y": {"auto": True},
         }
-        axes: tuple[viser.uplot.Axis, ...] = ({"label": "t - now [s]"}, {})
+        axes: tuple[viser.uplot.Axis, ...] = ({"size": 30}, {"size": 56})
         common: dict[str, Any] = {
             "scales": scales, "axes": axes, "height": PLOT_HEIGHT_PX,
             "legend": {"show": True, "live": False},
         }  # fmt: skip
-        axis_names = ("x", "y", "z")
+        self._truth_shown = False
         self.force = gui.add_uplot(
             (x, *([blank] * 6)),
-            (
-                _series("t", "#000"),
-                *(_series(f"est f{a}", c) for a, c in zip(axis_names, AXIS_RGB, strict=True)),
-                *(
-                    _series(f"true f{a}", c, dash=(6.0, 4.0), width=1.0)
-                    for a, c in zip(axis_names, AXIS_RGB, strict=True)
-                ),
-            ),
-            title="Tip force on the environment [N], base frame",
+            self._force_series(False),
+            title="Tip force on the environment [N] (base frame) vs t - now [s]",
             **common,
         )
         self.torque = []
@@ -160,14 +180,32 @@ class LivePlots:
             return False
         self._last_t_end = frames.t_end_s
         x = frames.x
+        has_truth = bool(np.any(np.isfinite(frames.force_true)))
+        if has_truth != self._truth_shown:  # a hidden series does not take part in the range
+            self._truth_shown = has_truth
+            self.force.series = self._force_series(has_truth)
         self.force.data = (
-            x, *(frames.force_est[:, k] for k in range(3)),
-            *(frames.force_true[:, k] for k in range(3)),
+            x, *(uplot_safe(frames.force_est[:, k]) for k in range(3)),
+            *(uplot_safe(frames.force_true[:, k]) for k in range(3)),
         )  # fmt: skip
         for j, handle in enumerate(self.torque):
-            handle.data = (x, frames.tau_motor[:, j], frames.tau_model[:, j])
-        self.residual.data = (x, *(frames.tau_ext[:, j] for j in range(N_JOINTS)))
+            handle.data = (
+                x, uplot_safe(frames.tau_motor[:, j]), uplot_safe(frames.tau_model[:, j])
+            )  # fmt: skip
+        self.residual.data = (x, *(uplot_safe(frames.tau_ext[:, j]) for j in range(N_JOINTS)))
         return True
 
+    @staticmethod
+    def _force_series(show_truth: bool) -> tuple[viser.uplot.Series, ...]:
+        axis_names = ("x", "y", "z")
+        return (
+            _series("t", "#000"),
+            *(_series(f"est f{a}", c) for a, c in zip(axis_names, AXIS_RGB, strict=True)),
+            *(
+                _series(f"true f{a}", c, dash=(6.0, 4.0), width=1.0, show=show_truth)
+                for a, c in zip(axis_names, AXIS_RGB, strict=True)
+            ),
+        )
 
-__all__ = ["AXIS_RGB", "LivePlots", "PlotFrames", "newest_time", "plot_frames"]
+
+__all__ = ["AXIS_RGB", "LivePlots", "PlotFrames", "newest_time", "plot_frames", "uplot_safe"]

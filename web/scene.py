@@ -22,7 +22,7 @@ METRES_PER_NEWTON: Final = 0.04
 TISSUE_SIZE_M: Final = (0.36, 0.30)
 #: Centre of the tissue plane in the base frame (x, z): in front of the arm, toward the user.
 TISSUE_CENTRE_XZ_M: Final = (0.0, 0.14)
-SLAVE_RGB: Final = (90, 96, 110)
+SLAVE_RGB: Final = (150, 156, 168)
 MASTER_RGB: Final = (66, 133, 244)
 EST_FORCE_RGB: Final = (242, 153, 0)
 TRUE_FORCE_RGB: Final = (30, 142, 62)
@@ -51,7 +51,8 @@ def _add_arm(
         links.append(
             scene.add_cylinder(
                 f"/{name}/{label}", radius=LINK_RADIUS_M, height=length, color=rgb,
-                opacity=opacity, position=pos, wxyz=wxyz, cast_shadow=opacity is None,
+                opacity=opacity, position=pos, wxyz=wxyz, cast_shadow=False,
+                receive_shadow=False,
             )
         )  # fmt: skip
     joints = []
@@ -61,7 +62,7 @@ def _add_arm(
         joints.append(
             scene.add_icosphere(
                 f"/{name}/{label}", radius=radius, color=rgb, opacity=opacity,
-                position=points[k], subdivisions=2,
+                position=points[k], subdivisions=2, cast_shadow=False, receive_shadow=False,
             )
         )  # fmt: skip
     return _Arm((links[0], links[1]), tuple(joints))
@@ -85,21 +86,24 @@ class OmniScene:
         """Build the static scene (base, tissue) and the two arms, camera at the user."""
         scene = server.scene
         scene.set_up_direction("+z")
+        # No shadow pass: the scene stays cheap to draw (software WebGL, laptops).
+        scene.configure_default_lights(cast_shadow=False)
+        scene.configure_environment_map(None)  # plain lights: far cheaper without a GPU
         scene.add_grid("/ground", width=0.6, height=0.6, cell_size=0.05, position=(0.0, -0.1, -0.2))
         # The Omni's base and turret, below the shoulder (base-frame origin).
         scene.add_box(
             "/base/plinth", color=(60, 64, 67), dimensions=(0.16, 0.16, 0.03),
-            position=base_to_world(np.array([0.0, -0.185, -0.03])),
+            position=base_to_world(np.array([0.0, -0.185, -0.03])), cast_shadow=False,
         )  # fmt: skip
         scene.add_cylinder(
             "/base/turret", radius=0.03, height=0.17, color=(95, 99, 104),
-            position=base_to_world(np.array([0.0, -0.09, 0.0])),
+            position=base_to_world(np.array([0.0, -0.09, 0.0])), cast_shadow=False,
         )  # fmt: skip
         # Base-frame axes (red x, green y up, blue z toward the user), rotated into the world.
         scene.add_frame("/base/frame", axes_length=0.05, axes_radius=0.002, wxyz=BASE_FRAME_WXYZ)
         self.tissue = scene.add_box(
             "/tissue", color=TISSUE_RGB, dimensions=(*TISSUE_SIZE_M, 0.004), opacity=0.55,
-            position=self._tissue_position(tissue_y_m),
+            position=self._tissue_position(tissue_y_m), cast_shadow=False, receive_shadow=False,
         )  # fmt: skip
         self.tissue_y_m = tissue_y_m
         self.slave = _add_arm(scene, "slave", SLAVE_RGB, None)
@@ -118,7 +122,7 @@ class OmniScene:
         )  # fmt: skip
         self.show_true_force = True
         self.show_ghost = True
-        server.initial_camera.position = (0.18, -0.5, 0.16)
+        server.initial_camera.position = (0.32, -0.62, 0.24)
         server.initial_camera.look_at = (0.0, -0.1, -0.05)
         server.initial_camera.up = (0.0, 0.0, 1.0)
 

