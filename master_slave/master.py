@@ -6,7 +6,7 @@ moves it along a script (:mod:`master_slave.operator`: palpation or random motio
 is a stiff PID impedance on the master's joints, whose torque the plant receives together
 with the master's own motor torque. Every 1 ms tick::
 
-    read the master (measured q)
+    read the master (measured q), stamped with the wall time of the reading
     publish JointSetpoint(q) on omni/<master>/setpoint_js     (what the slave follows)
     hand torque toward the script; haptic feedback torque J(q)^T (-scale F_est) if enabled
     publish JointState (q, qd, effort = the master's motor torque = the feedback)
@@ -60,6 +60,7 @@ from teleop_force.service_stats import LatencyHistogram, SequenceTracker
 from teleop_force.service_transport import (
     declare_data_publisher,
     declare_json_queryable,
+    declare_liveliness_subscriber,
     declare_subscriber,
     declare_token,
     put,
@@ -195,6 +196,8 @@ class MasterProcess:
         self.feedback = FeedbackInbox()
         self.published = 0
         self.waited_for_subscriber_s = 0.0
+        #: Time spent publishing a setpoint (congestion control BLOCK waits here).
+        self.put_time = LatencyHistogram()
 
     def stats(self) -> dict[str, Any]:
         """JSON statistics of the process (also the reply of the stats queryable)."""
@@ -205,6 +208,7 @@ class MasterProcess:
             "haptic_feedback": self.config.haptic_feedback,
             "loop": self.loop.stats(),
             "published_setpoints": self.published,
+            "setpoint_put_ms": self.put_time.summary_ms(),
             "waited_for_subscriber_s": round(self.waited_for_subscriber_s, 3),
             "feedback": self.feedback.stats(),
         }
@@ -229,9 +233,25 @@ class MasterProcess:
             )
             entities.append(declare_token(session, keys.alive(config.device, ROLE)))
             if config.run.wait_subscribers_s > 0.0:
+                # Wait for the slave itself, not just any subscriber (a recorder may subscribe
+                # first): its token comes after its setpoint subscriber.
+                slave_seen = threading.Event()
+
+                def on_slave_token(sample: zenoh.Sample) -> None:
+                    if sample.kind == zenoh.SampleKind.PUT:
+                        slave_seen.set()
+
+                entities.append(
+                    declare_liveliness_subscriber(
+                        session, keys.alive(config.slave, "slave"), on_slave_token
+                    )
+                )
                 started = time.perf_counter()
                 matched = wait_for_subscribers(
-                    sp_pub, config.run.wait_subscribers_s, stop=self.stop.is_set
+                    sp_pub,
+                    config.run.wait_subscribers_s,
+                    stop=self.stop.is_set,
+                    ready=slave_seen.is_set,
                 )
                 self.waited_for_subscriber_s = time.perf_counter() - started
                 if not matched and not self.stop.is_set():
@@ -263,10 +283,14 @@ class MasterProcess:
             k = loop.wait()
             if n_ticks is not None and k >= n_ticks:
                 break
-            stamp_ns = loop.stamp_ns
             seq = k & SEQ_MASK
             q = plant.read().q_rad
-            put(sp_pub, m.JointSetpoint(seq, stamp_ns, q).encode())
+            stamp_ns = time.time_ns()  # when the pose was read, as a real driver would stamp it
+            q_floats = tuple(q.tolist())
+            setpoint = m.JointSetpoint(seq, stamp_ns, q_floats).encode()
+            put_started_s = time.perf_counter()
+            put(sp_pub, setpoint)
+            self.put_time.add(time.perf_counter() - put_started_s)
             q_hand, qd_hand = operator.reference(k)
             tau_hand = hand.update(q_hand, q, qd_hand)
             tau_motor = zero
@@ -275,7 +299,14 @@ class MasterProcess:
                 if arrival_s is not None and time.perf_counter() - arrival_s <= FEEDBACK_STALE_S:
                     tau_motor = feedback_torque_nm(q, force, scale, omni.MOTOR_TORQUE_LIMIT_NM)
             plant.command_torque(tau_hand + tau_motor)
-            put(js_pub, m.JointState(seq, stamp_ns, q, hand.velocity_rad_s, tau_motor).encode())
+            state_message = m.JointState(
+                seq,
+                stamp_ns,
+                q_floats,
+                tuple(hand.velocity_rad_s.tolist()),
+                tuple(tau_motor.tolist()),
+            )
+            put(js_pub, state_message.encode())
             self.published += 1
             plant.step()
 
@@ -305,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the master process; return the exit status."""
     args = build_parser().parse_args(argv)
-    stop = StopSignal().install()
+    stop = StopSignal().install().watch_supervisor()
     use_realtime_switch_interval()
     try:
         run = run_config_from_args(args)

@@ -51,6 +51,10 @@ class SafetyDecision:
     reason: str
     changed: bool
 
+    def __post_init__(self) -> None:
+        """Normalise the state to a :class:`SafetyState`."""
+        object.__setattr__(self, "state", SafetyState(self.state))
+
 
 class SafetyMonitor:
     """Decide each tick whether the slave follows the master or holds (module docstring)."""

@@ -16,6 +16,10 @@ Published (``<slave>`` = ``--device``)::
     omni/<slave>/alive/slave    liveliness token
     omni/<slave>/stats/slave    queryable: JSON statistics (loop, setpoints, safety)
 
+The stamp ``t_ns`` of tick ``k`` is its nominal time ``start + k * 1 ms``: the plant advances
+exactly one period per tick, so stamp differences are the simulated sample period (what the
+estimator differentiates with), and a tick that runs late shows as latency downstream.
+
 Subscribed: ``omni/<master>/setpoint_js`` and the master's liveliness token
 ``omni/<master>/alive/master``. SAFETY: when the token disappears or the last setpoint arrived
 more than ``--stale-ms`` (50) ago, the slave holds in the same tick: the setpoint is frozen at
@@ -215,6 +219,8 @@ class SlaveProcess:
         self.inbox = SetpointInbox()
         self.presence = MasterPresence()
         self.published = 0
+        #: Time spent publishing a joint state (congestion control BLOCK waits here).
+        self.put_time = LatencyHistogram()
         self.hold_events: list[dict[str, Any]] = []
         self._status_seq = 0
         self._last_status_s = -math.inf
@@ -233,6 +239,7 @@ class SlaveProcess:
             "loop": self.loop.stats(),
             "setpoints": self.inbox.stats(),
             "published_joint_states": self.published,
+            "joint_state_put_ms": self.put_time.summary_ms(),
             "master_alive": self.presence.alive,
             "holds": self.safety.holds,
             "hold_events": self.hold_events[-20:],
@@ -320,11 +327,19 @@ class SlaveProcess:
                 tau = tau - damping * pid.velocity_rad_s
             command = plant.command_torque(tau)
             seq = k & SEQ_MASK
-            put(
-                js_pub,
-                m.JointState(seq, stamp_ns, q, pid.velocity_rad_s, command.tau_nm).encode(),
+            state_message = m.JointState(
+                seq,
+                stamp_ns,
+                tuple(q.tolist()),
+                tuple(pid.velocity_rad_s.tolist()),
+                tuple(command.tau_nm.tolist()),
             )
-            put(cf_pub, m.ContactForce(seq, stamp_ns, state.f_tip_in_base_n).encode())
+            put_started_s = time.perf_counter()
+            put(js_pub, state_message.encode())
+            self.put_time.add(time.perf_counter() - put_started_s)
+            force = state.f_tip_in_base_n
+            force_floats = (0.0, 0.0, 0.0) if force is None else tuple(force.tolist())
+            put(cf_pub, m.ContactForce(seq, stamp_ns, force_floats).encode())
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)
@@ -380,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the slave process; return the exit status."""
     args = build_parser().parse_args(argv)
-    stop = StopSignal().install()
+    stop = StopSignal().install().watch_supervisor()
     use_realtime_switch_interval()
     try:
         config = SlaveConfig(

@@ -1,1 +1,145 @@
-"""Sensorless contact-force estimation for teleoperated haptic robots."""
+"""Sensorless contact-force estimation for teleoperated haptic robots.
+
+The front door: identify a model from recordings, estimate contact forces sample by sample,
+close the loop on what the model lacks. Zenoh keys and wire messages live in
+:mod:`teleop_force.keys` and :mod:`teleop_force.messages`; the simulated Omni in
+:mod:`teleop_force.simulation`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives; imported on first use so that processes start fast.
+_LOCATIONS = {
+    "BaseParameters": "teleop_force.regressor",
+    "ConfigurationError": "teleop_force.errors",
+    "CoulombViscous": "teleop_force.friction",
+    "CoupledCoulombViscous": "teleop_force.friction",
+    "CoverageMap": "teleop_force.friction.coverage",
+    "DataError": "teleop_force.errors",
+    "Device": "teleop_force.device",
+    "DynamicModel": "teleop_force.dynamic_model",
+    "FilterConfig": "teleop_force.filtered_regressor",
+    "ForceEstimate": "teleop_force.estimation",
+    "ForceEstimator": "teleop_force.estimation",
+    "FrictionModel": "teleop_force.friction",
+    "Identification": "teleop_force.identification",
+    "LowPass": "teleop_force.lowpass",
+    "LyapunovAdapter": "teleop_force.friction.adaptation",
+    "MessageError": "teleop_force.errors",
+    "ModelError": "teleop_force.errors",
+    "ModelFileError": "teleop_force.errors",
+    "Recording": "teleop_force.interchange_csv",
+    "ResidualReport": "teleop_force.residual",
+    "RigidBodyRegressor": "teleop_force.regressor",
+    "Robot": "teleop_force.robot",
+    "RobotDescription": "teleop_force.robot",
+    "SessionReader": "teleop_force.mcap_session",
+    "SessionWriter": "teleop_force.mcap_session",
+    "SingularityError": "teleop_force.errors",
+    "TeleopForceError": "teleop_force.errors",
+    "TransportError": "teleop_force.errors",
+    "WaveletNetwork": "teleop_force.friction.wavelet_network",
+    "evaluate_model": "teleop_force.model_fitting",
+    "fit_batch": "teleop_force.friction.adaptation",
+    "identify_model": "teleop_force.model_fitting",
+    "least_squares": "teleop_force.identification",
+    "omni_description": "teleop_force.omni",
+    "read_interchange_csv": "teleop_force.interchange_csv",
+    "read_recording": "teleop_force.recordings",
+    "relative_rms": "teleop_force.identification",
+    "resolve_robot": "teleop_force.robots",
+    "trace_residual": "teleop_force.residual",
+    "write_interchange_csv": "teleop_force.interchange_csv",
+}
+
+if TYPE_CHECKING:
+    from teleop_force.device import Device
+    from teleop_force.dynamic_model import DynamicModel
+    from teleop_force.errors import (
+        ConfigurationError,
+        DataError,
+        MessageError,
+        ModelError,
+        ModelFileError,
+        SingularityError,
+        TeleopForceError,
+        TransportError,
+    )
+    from teleop_force.estimation import ForceEstimate, ForceEstimator
+    from teleop_force.filtered_regressor import FilterConfig
+    from teleop_force.friction import CoulombViscous, CoupledCoulombViscous, FrictionModel
+    from teleop_force.friction.adaptation import LyapunovAdapter, fit_batch
+    from teleop_force.friction.coverage import CoverageMap
+    from teleop_force.friction.wavelet_network import WaveletNetwork
+    from teleop_force.identification import Identification, least_squares, relative_rms
+    from teleop_force.interchange_csv import Recording, read_interchange_csv, write_interchange_csv
+    from teleop_force.lowpass import LowPass
+    from teleop_force.mcap_session import SessionReader, SessionWriter
+    from teleop_force.model_fitting import evaluate_model, identify_model
+    from teleop_force.omni import omni_description
+    from teleop_force.recordings import read_recording
+    from teleop_force.regressor import BaseParameters, RigidBodyRegressor
+    from teleop_force.residual import ResidualReport, trace_residual
+    from teleop_force.robot import Robot, RobotDescription
+    from teleop_force.robots import resolve_robot
+
+__all__ = [
+    "BaseParameters",
+    "ConfigurationError",
+    "CoulombViscous",
+    "CoupledCoulombViscous",
+    "CoverageMap",
+    "DataError",
+    "Device",
+    "DynamicModel",
+    "FilterConfig",
+    "ForceEstimate",
+    "ForceEstimator",
+    "FrictionModel",
+    "Identification",
+    "LowPass",
+    "LyapunovAdapter",
+    "MessageError",
+    "ModelError",
+    "ModelFileError",
+    "Recording",
+    "ResidualReport",
+    "RigidBodyRegressor",
+    "Robot",
+    "RobotDescription",
+    "SessionReader",
+    "SessionWriter",
+    "SingularityError",
+    "TeleopForceError",
+    "TransportError",
+    "WaveletNetwork",
+    "evaluate_model",
+    "fit_batch",
+    "identify_model",
+    "least_squares",
+    "omni_description",
+    "read_interchange_csv",
+    "read_recording",
+    "relative_rms",
+    "resolve_robot",
+    "trace_residual",
+    "write_interchange_csv",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name on first use (PEP 562)."""
+    module = _LOCATIONS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """Public names."""
+    return sorted(__all__)

@@ -27,19 +27,31 @@ def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def _load_recordings(paths: Sequence[str], n_joints: int | None = None) -> list[Any]:
-    from teleop_force.recordings import read_recording
+def _load_recordings(
+    paths: Sequence[str], n_joints: int | None = None, robot: str | None = None
+) -> list[Any]:
+    from teleop_force.recordings import read_recording_with_notes
 
-    return [read_recording(Path(p), n_joints=n_joints) for p in paths]
+    recordings = []
+    for p in paths:
+        recording, notes = read_recording_with_notes(Path(p), n_joints=n_joints, robot=robot)
+        for note in notes:
+            _log(note)
+        recordings.append(recording)
+    return recordings
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from teleop_force.model_fitting import WaveletOptions, identify_model
     from teleop_force.robots import resolve_robot
 
-    recordings = _load_recordings(args.data)
+    recordings = _load_recordings(args.data, robot=args.robot)
     n = recordings[0].q_rad.shape[1]
     description = resolve_robot(args.robot, n)
+    if description.name == "teststand":
+        from teleop_force.teststand_force import identify_teststand_command
+
+        return identify_teststand_command(recordings, description, args.friction, args.output, _log)
     model, report = identify_model(
         recordings, description, args.friction, wavelet=WaveletOptions(method=args.wn_fit)
     )
@@ -57,7 +69,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from teleop_force.model_fitting import evaluate_model
 
     model = DynamicModel.load(args.model)
-    recordings = _load_recordings(args.data, model.n_joints)
+    recordings = _load_recordings(args.data, model.n_joints, robot=model.robot)
     result = evaluate_model(model, recordings)
     payload = {
         "relative_rms": [float(x) for x in result["relative_rms"]],
@@ -80,7 +92,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from teleop_force.estimation import ForceEstimator
 
     model = DynamicModel.load(args.model)
-    (recording,) = _load_recordings([args.data], model.n_joints)
+    (recording,) = _load_recordings([args.data], model.n_joints, robot=model.robot)
     estimator = ForceEstimator(model)
     forces = np.empty((recording.t_s.size, 3))
     for k in range(recording.t_s.size):
@@ -96,7 +108,7 @@ def _cmd_residual(args: argparse.Namespace) -> int:
     from teleop_force.residual_report import write_residual_report
     from teleop_force.robots import resolve_robot
 
-    recordings = _load_recordings(args.data)
+    recordings = _load_recordings(args.data, robot=args.robot)
     description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
     report = trace_residual(recordings, description, ResidualOptions(friction=args.friction))
     if args.output:
@@ -112,6 +124,19 @@ def _cmd_residual(args: argparse.Namespace) -> int:
             print(f"  + {e['description']}: {e['kind']}, explains {e['explained']:.1%} of joint {e['joint']}'s residual")
         if not report.effects:
             print("no significant effect found")
+    return EXIT_OK
+
+
+def _cmd_report_robots(args: argparse.Namespace) -> int:
+    from teleop_force.robot_reports import run_robot_reports
+
+    path = run_robot_reports(
+        Path(args.output),
+        None if args.datasets is None else Path(args.datasets),
+        residual=not args.skip_residual,
+        log=_log,
+    )
+    _log(f"report written to {path}")
     return EXIT_OK
 
 
@@ -181,8 +206,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         payload: dict[str, Any] = result.to_dict()
         if service is not None:
             expected = result.published.get(f"omni/{device}/measured_js", 0)
-            deadline = time.perf_counter() + 30.0
-            while service.seqs.received < expected and time.perf_counter() < deadline:
+            done, idle_since = -1, time.perf_counter()
+            while service.seqs.received < expected and time.perf_counter() - idle_since < 10.0:
+                if service.seqs.received != done:  # still progressing: keep waiting
+                    done, idle_since = service.seqs.received, time.perf_counter()
                 time.sleep(0.01)
             service.close()
             payload["service"] = service.stats()
@@ -203,6 +230,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_residual_blind(args: argparse.Namespace) -> int:
+    from teleop_force.residual_blind import run_blind_tests, write_blind_report
+
+    cases = run_blind_tests(args.duration, log=_log)
+    path = write_blind_report(cases, Path(args.output))
+    print(path.read_text())
+    return EXIT_OK if all(c.passed for c in cases) else 1
+
+
 def _cmd_experiments(args: argparse.Namespace) -> int:
     from teleop_force.experiments import ExperimentOptions, run_experiments
 
@@ -211,6 +247,14 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     _log(f"report written to {Path(args.output) / 'report.md'}")
     if args.json:
         print(json.dumps(results, default=float))
+    return EXIT_OK
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from teleop_force.bench import format_table, options_from_args, run_bench
+
+    result = run_bench(options_from_args(args), log=_log)
+    print(json.dumps(result) if args.json else format_table(result))
     return EXIT_OK
 
 
@@ -257,6 +301,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
     p.set_defaults(run=_cmd_residual)
 
+    p = sub.add_parser("report-robots", help="tables and plots of the real-robot datasets")
+    p.add_argument("-o", "--output", default="reports/robots", help="folder for the report")
+    p.add_argument("--datasets", help="datasets folder (default: <repo>/../shared/datasets)")
+    p.add_argument("--skip-residual", action="store_true", help="skip the slow MTM residual loop")
+    p.set_defaults(run=_cmd_report_robots)
+
     p = sub.add_parser("demo", help="master, slave, service and dashboard over Zenoh on loopback")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="run S seconds once everything is up (default: until Ctrl-C)")
@@ -296,8 +346,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_zenoh_arguments(p)
     p.set_defaults(run=_cmd_replay)
 
-    p = sub.add_parser("bench")
-    p.set_defaults(run=_not_yet("bench"))
+    p = sub.add_parser("bench", help="performance figures of this machine, measured in one run")
+    from teleop_force.bench import add_bench_arguments
+
+    add_bench_arguments(p)
+    p.set_defaults(run=_cmd_bench)
 
     p = sub.add_parser("experiments", help="reproduce the paper's experiments on the simulated Omni")
     p.add_argument("-o", "--output", required=True, help="folder for report.md, report.json and figures")
@@ -306,6 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_cmd_experiments)
+
+    p = sub.add_parser("residual-blind", help="blind tests of the residual loop on simulated effects")
+    p.add_argument("-o", "--output", required=True, help="folder for blind.md and blind.json")
+    p.add_argument("--duration", type=float, default=60.0, help="session length [s]")
+    p.set_defaults(run=_cmd_residual_blind)
     return parser
 
 

@@ -2,8 +2,8 @@ r"""``teleop-force demo``: master, slave, service (and dashboard) on loopback, s
 
 The supervisor opens the rendezvous Zenoh endpoint ``tcp/127.0.0.1:<free port>`` (peer mode,
 multicast scouting off); every child is a peer that ``--connect``\\ s to it, and Zenoh's gossip
-lets the peers connect to one another. Children are started in order, each once the previous
-one's liveliness token is seen:
+lets the peers connect to one another. The children start together (their imports overlap);
+each one's liveliness token tells the supervisor it is up:
 
 1. the force-estimation service (``python -m teleop_force.service``), recording the session
    to ``recordings/demo-<timestamp>.mcap``;
@@ -21,8 +21,10 @@ messages lost, master -> slave latency, slave -> estimate latency, and the force
 error during contact as a fraction of the RMS true force (``--summary-json`` writes it too).
 
 Children run in their own process groups (a terminal's Ctrl-C reaches only the supervisor,
-which stops them in order); each group gets SIGTERM, then SIGKILL after a timeout. On Linux
-the children also get SIGTERM if the supervisor dies (``PR_SET_PDEATHSIG``).
+which stops them in order); each group gets SIGTERM, then SIGKILL after a timeout. If the
+supervisor itself dies, the children stop by themselves: on Linux they get SIGTERM
+(``PR_SET_PDEATHSIG``), and in any case they watch their parent
+(``$TELEOP_FORCE_SUPERVISOR_PID``) and stop within a quarter of a second of it going away.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import ctypes
 import importlib.util
 import math
 import os
+import queue
 import signal
 import subprocess
 import sys
@@ -46,9 +49,9 @@ import zenoh
 
 from teleop_force import keys
 from teleop_force import messages as m
-from teleop_force.errors import ConfigurationError, MessageError, TransportError
+from teleop_force.errors import ConfigurationError, DataError, MessageError, TransportError
 from teleop_force.service_accuracy import AccuracyConfig, ForceAccuracy
-from teleop_force.service_runtime import StopSignal, write_json
+from teleop_force.service_runtime import SUPERVISOR_PID_ENV, StopSignal, write_json
 from teleop_force.service_stats import SequenceTracker
 from teleop_force.service_transport import (
     declare_liveliness_subscriber,
@@ -145,9 +148,11 @@ class Child:
         self.name = name
         self.argv = argv
         preexec = _die_with_parent if sys.platform.startswith("linux") else None
+        environment = {**os.environ, SUPERVISOR_PID_ENV: str(os.getpid())}
         try:
             self.process = subprocess.Popen(
                 argv,
+                env=environment,
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=log,
@@ -232,7 +237,12 @@ class _Presence:
 
 
 class _Monitor:
-    """The supervisor's own subscriptions: estimates, true forces, slave status."""
+    """The supervisor's own subscriptions: estimates, true forces, slave status.
+
+    The Zenoh callbacks only queue the payloads; one worker thread decodes them, so a busy
+    supervisor never holds up a receive thread (and, through congestion control BLOCK, the
+    publishers: the service and the slave).
+    """
 
     def __init__(self, accuracy: AccuracyConfig) -> None:
         self.accuracy = ForceAccuracy(accuracy)
@@ -242,38 +252,56 @@ class _Monitor:
         self.state = "unknown"
         self.reason = ""
         self.holds_seen = 0
-        self._lock = threading.Lock()
+        self._queue: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
+        self._thread.start()
 
     def on_estimate(self, sample: zenoh.Sample) -> None:
-        try:
-            estimate = m.ForceEstimate.decode(sample.payload.to_bytes())
-        except MessageError:
-            self.malformed += 1
-            return
-        with self._lock:
-            self.estimates.observe(estimate.seq)
-        self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
+        self._queue.put(("estimate", sample.payload.to_bytes()))
 
     def on_true_force(self, sample: zenoh.Sample) -> None:
-        try:
-            force = m.ContactForce.decode(sample.payload.to_bytes())
-        except MessageError:
-            self.malformed += 1
-            return
-        with self._lock:
-            self.true_forces.observe(force.seq)
-        self.accuracy.add_true(force.seq, force.f_n)
+        self._queue.put(("true", sample.payload.to_bytes()))
 
     def on_status(self, sample: zenoh.Sample) -> None:
-        try:
-            status = m.Status.decode(sample.payload.to_bytes())
-        except MessageError:
-            self.malformed += 1
-            return
-        state = status.state.name.lower()
-        if state == "holding" and self.state != "holding":
-            self.holds_seen += 1
-        self.state, self.reason = state, status.reason
+        self._queue.put(("status", sample.payload.to_bytes()))
+
+    def drain(self, timeout_s: float = 10.0) -> None:
+        """Wait until every queued payload is processed (or ``timeout_s``)."""
+        deadline = time.perf_counter() + timeout_s
+        while not self._queue.empty() and time.perf_counter() < deadline:
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        """Stop the worker thread."""
+        self._queue.put(None)
+        self._thread.join(5.0)
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            kind, payload = item
+            try:
+                self._process(kind, payload)
+            except MessageError:
+                self.malformed += 1
+
+    def _process(self, kind: str, payload: bytes) -> None:
+        if kind == "estimate":
+            estimate = m.ForceEstimate.decode(payload)
+            self.estimates.observe(estimate.seq)
+            self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
+        elif kind == "true":
+            force = m.ContactForce.decode(payload)
+            self.true_forces.observe(force.seq)
+            self.accuracy.add_true(force.seq, force.f_n)
+        else:
+            status = m.Status.decode(payload)
+            state = status.state.name.lower()
+            if state == "holding" and self.state != "holding":
+                self.holds_seen += 1
+            self.state, self.reason = state, status.reason
 
 
 def _python_module(module: str, *args: str) -> list[str]:
@@ -324,7 +352,16 @@ class DemoSupervisor:
     def run(self) -> dict[str, Any]:
         """Run the demo to the end; return the summary (also printed)."""
         config = self.config
-        config.record_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            config.record_dir.mkdir(parents=True, exist_ok=True)
+            log = open(self.log_path, "ab")  # noqa: SIM115 - closed below
+        except OSError as exc:
+            raise DataError(f"cannot write: {exc.strerror or exc}", path=self.log_path) from None
+        with log:
+            return self._run(log)
+
+    def _run(self, log: IO[bytes]) -> dict[str, Any]:
+        config = self.config
         port = config.zenoh_port or free_tcp_port()
         self.endpoint = listen_endpoint(port)
         self.session = open_session(
@@ -351,18 +388,19 @@ class DemoSupervisor:
             entities.append(
                 declare_subscriber(self.session, keys.status(config.slave), self.monitor.on_status)
             )
-            with open(self.log_path, "ab") as log:
-                self.say(f"zenoh endpoint: {self.endpoint} (peer mode, no multicast)")
-                self.say(f"recording: {self.recording}   logs: {self.log_path}")
-                if self._start_all(log):
-                    self._watch()
-                self.ended_s = time.perf_counter()
-                final = self._final_stats()
-                self._stop_children()
+            self.say(f"zenoh endpoint: {self.endpoint} (peer mode, no multicast)")
+            self.say(f"recording: {self.recording}   logs: {self.log_path}")
+            if self._start_all(log):
+                self._watch()
+            self.ended_s = time.perf_counter()
+            final = self._final_stats()
+            self._stop_children()
         finally:
             self._stop_children()
             undeclare_all(*entities)
             self.session.close()
+            self.monitor.drain()
+            self.monitor.close()
         summary = self._summary(final)
         self._print_summary(summary)
         if config.summary_json is not None:
@@ -397,10 +435,16 @@ class DemoSupervisor:
             ("slave", "master_slave.slave", slave, keys.alive(config.slave, "slave")),
             ("master", "master_slave.master", master, keys.alive(config.master, "master")),
         ]
+        # Started together (their imports overlap); the order of the data flow is kept by the
+        # handshakes: the slave streams once the service subscribes to its joint states, the
+        # master once the slave subscribes to its setpoints.
+        started = []
         for name, module, args, token in steps:
             child = Child(name, _python_module(module, *args, *self._connect_args()), log)
             self.children.append(child)
+            started.append((child, token))
             self.say(f"started {name} (pid {child.pid})")
+        for child, token in started:
             if not self._wait_for_token(child, token):
                 return False
         self._start_dashboard(log)
@@ -510,6 +554,9 @@ class DemoSupervisor:
         parts = {
             "setpoints_at_slave": int((slave or {}).get("setpoints", {}).get("lost", 0)),
             "joint_states_at_service": int((service or {}).get("joint_states", {}).get("lost", 0)),
+            "joint_states_dropped_by_service": int(
+                (service or {}).get("joint_states", {}).get("overflow_dropped", 0)
+            ),
             "estimates_at_supervisor": self.monitor.estimates.lost,
             "true_forces_at_supervisor": self.monitor.true_forces.lost,
         }
@@ -521,8 +568,10 @@ class DemoSupervisor:
         wall = time.perf_counter() - self.running_s if self.running_s else 0.0
         for child in self.children:
             now, then = child.cpu_s(), self._cpu_at_run.get(child.name)
-            usable = now is not None and then is not None and wall > 0.0
-            self.cpu_percent[child.name] = round(100.0 * (now - then) / wall, 1) if usable else None
+            percent = None
+            if now is not None and then is not None and wall > 0.0:
+                percent = round(100.0 * (now - then) / wall, 1)
+            self.cpu_percent[child.name] = percent
         if wall > 0.0:
             own = os.times()
             used = own.user + own.system - self._own_cpu_at_run

@@ -72,11 +72,11 @@ class DynamicModel:
         blended = getattr(self.friction, "blended_torque", None) if blend else None
         return blended(qd) if blended is not None else self.friction.torque(qd)
 
-    def effects_torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Torque of the found effects (N x n)."""
+    def effects_torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray) -> np.ndarray:
+        """Torque of the found effects (N x n); ``load`` is the filtered rigid-body model torque."""
         total = np.zeros_like(np.asarray(q, dtype=float))
         for effect in self.effects:
-            total += effect.torque(t_s, q, qd, tau)
+            total += effect.torque(t_s, q, qd, load)
         return total
 
     def predict_filtered_torque(
@@ -87,7 +87,7 @@ class DynamicModel:
         rigid = np.einsum("kjp,p->kj", signals.rigid_regressor, self.base_values)
         other = self.friction_torque(signals.qd_rad_s, blend) + self.offsets_nm[None, :]
         if self.effects:
-            other = other + self.effects_torque(t, signals.q_rad, signals.qd_rad_s, tau_nm)
+            other = other + self.effects_torque(t, signals.q_rad, signals.qd_rad_s, rigid)
         return rigid + lowpass_batch(other, t, self.filter_config.cutoff_hz)
 
     def to_dict(self) -> dict[str, Any]:

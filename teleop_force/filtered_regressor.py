@@ -119,12 +119,7 @@ def filter_signals(
     tau_l = lagged(lowpass_batch(tau_prefiltered, t_s, config.cutoff_hz), config.torque_lag_samples)
     n = q_rad.shape[1]
     if regressor is not None and base is not None:
-        cols = base.independent
-        y_p = np.empty((t_s.size, n, cols.size))
-        y_w = np.empty_like(y_p)
-        for k in range(t_s.size):
-            y_p[k] = regressor.momentum(q_rad[k], qd[k])[:, cols]
-            y_w[k] = regressor.coriolis_gravity(q_rad[k], qd[k])[:, cols]
+        y_p, y_w = regressor.momentum_form_batch(q_rad, qd, base.independent)
         y_derivative = filtered_derivative_batch(y_p, t_s, config.cutoff_hz)
         y_lowpassed = lowpass_batch(y_w, t_s, config.cutoff_hz)
         y_momentum = lowpass_batch(y_p, t_s, config.cutoff_hz)

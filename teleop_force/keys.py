@@ -11,6 +11,7 @@ Each key carries the id of the device it is about, so several arms can share one
     omni/<device>/service/stats      queryable: estimator statistics
     omni/<device>/alive/<role>       liveliness token of one process (master, slave, service...)
     omni/<device>/service/adapt      subscriber: payload "on" / "off" switches online adaptation
+    omni/<device>/service/control    queryable: JSON requests (start / stop a recording)
     omni/<device>/stats/<role>       queryable: JSON statistics of one process (master, slave...)
 
 The same strings name the channels of a recorded MCAP session (see :mod:`mcap_session`).
@@ -38,10 +39,13 @@ SERVICE_MODEL: Final = "service/model"
 SERVICE_STATS: Final = "service/stats"
 ALIVE: Final = "alive"
 SERVICE_ADAPT: Final = "service/adapt"
+SERVICE_CONTROL: Final = "service/control"
 STATS: Final = "stats"
 
 #: Topic kinds that carry a stream of messages (publisher / subscriber keys).
 DATA_KINDS: Final = (MEASURED_JS, SETPOINT_JS, MEASURED_CF, ESTIMATED_CF, STATUS)
+#: Kinds of the estimation service's queryables and control subscriber.
+SERVICE_KINDS: Final = (SERVICE_MODEL, SERVICE_STATS, SERVICE_ADAPT, SERVICE_CONTROL)
 
 _FORBIDDEN_CHARS: Final = frozenset("/*$#?")
 
@@ -112,6 +116,11 @@ def service_adapt(device: str) -> str:
     return _key(device, SERVICE_ADAPT)
 
 
+def service_control(device: str) -> str:
+    """Key of the queryable taking JSON control requests (recording) for ``device``'s service."""
+    return _key(device, SERVICE_CONTROL)
+
+
 def process_stats(device: str, role: str) -> str:
     """Key of the queryable returning the JSON statistics of the ``role`` process of ``device``."""
     return f"{_key(device, STATS)}/{validate_chunk(role, 'role')}"
@@ -152,7 +161,7 @@ def parse(key: str) -> ParsedKey:
         raise ConfigurationError(f"{key!r} is not a teleop-force key ({ROOT}/<device>/<kind>)")
     device = validate_chunk(parts[1])
     rest = "/".join(parts[2:])
-    if rest in DATA_KINDS or rest in (SERVICE_MODEL, SERVICE_STATS):
+    if rest in DATA_KINDS or rest in SERVICE_KINDS:
         return ParsedKey(device=device, kind=rest)
     if len(parts) == 4 and parts[2] == ALIVE:
         return ParsedKey(device=device, kind=ALIVE, role=validate_chunk(parts[3], "role"))

@@ -100,6 +100,13 @@ class ReplayResult:
     matched: bool
     stopped: bool
 
+    def __post_init__(self) -> None:
+        """Check the counts and durations."""
+        if self.duration_s < 0.0 or self.recorded_span_s < 0.0:
+            raise ConfigurationError("durations must be >= 0")
+        if any(count < 0 for count in self.published.values()):
+            raise ConfigurationError("published counts must be >= 0")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return dataclasses.asdict(self)

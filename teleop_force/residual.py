@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from teleop_force.dynamic_model import DynamicModel
 from teleop_force.effects import BasisSpec, FoundEffect, variable_values
@@ -41,14 +42,14 @@ class ResidualOptions:
 
     folds: int = 5
     blocks_per_fold: int = 4
-    min_rms_gain: float = 0.03
+    min_rms_gain: float = 0.05
     min_fold_wins: float = 0.8
     max_effects: int = 6
     decimate: int = 5
     smooth_counts: tuple[int, ...] = (6, 12)
     modulated_counts: tuple[int, ...] = (4, 6, 8)
     harmonics: int = 2
-    friction: str = "coupled-cv"
+    friction: str = "wn"
     ridge: float = 1e-4
 
     def __post_init__(self) -> None:
@@ -56,8 +57,8 @@ class ResidualOptions:
             raise ConfigurationError("folds must be >= 3")
         if not 0 < self.min_rms_gain < 1:
             raise ConfigurationError("min_rms_gain must be in (0, 1)")
-        if self.friction not in ("cv", "coupled-cv"):
-            raise ConfigurationError("residual friction must be cv or coupled-cv")
+        if self.friction not in ("cv", "coupled-cv", "wn"):
+            raise ConfigurationError("residual friction must be cv, coupled-cv or wn")
         if self.decimate < 1:
             raise ConfigurationError("decimate must be >= 1")
 
@@ -134,7 +135,11 @@ class _Design:
             c = c_all - crosses[f]
             scale = np.sqrt(np.clip(np.diag(g), 1e-300, None))
             gs = g / np.outer(scale, scale) + self.ridge * np.eye(len(scale))
-            theta = np.linalg.lstsq(gs, c / scale, rcond=None)[0] / scale
+            try:
+                factor = scipy.linalg.cho_factor(gs, check_finite=False)
+                theta = scipy.linalg.cho_solve(factor, c / scale, check_finite=False) / scale
+            except np.linalg.LinAlgError:
+                theta = np.linalg.lstsq(gs, c / scale, rcond=None)[0] / scale
             errors[f] = self.yy[f] - 2 * theta @ crosses[f] + theta @ grams[f] @ theta
         return np.clip(errors, 0.0, None)
 
@@ -163,11 +168,15 @@ class _Data:
     rows: list[np.ndarray]
     folds: np.ndarray
     raw: dict[str, np.ndarray]
+    loads: list[np.ndarray]
+    cache: dict[BasisSpec, np.ndarray] = field(default_factory=dict)
 
 
-def _select_rows(prepared: Sequence[PreparedRecording], options: ResidualOptions) -> _Data:
+def _select_rows(
+    prepared: Sequence[PreparedRecording], options: ResidualOptions, base_values: np.ndarray
+) -> _Data:
     rows, fold_ids = [], []
-    t, q, qd, tau = [], [], [], []
+    t, q, qd, tau, loads = [], [], [], [], []
     for item in prepared:
         s = item.signals
         idx = np.flatnonzero(s.valid)[:: options.decimate]
@@ -180,19 +189,26 @@ def _select_rows(prepared: Sequence[PreparedRecording], options: ResidualOptions
         t.append(s.t_s)
         q.append(s.q_rad)
         qd.append(s.qd_rad_s)
-        tau.append(item.recording.tau_nm)
+        load = np.einsum("kjp,p->kj", s.rigid_regressor, base_values)
+        loads.append(load)
+        tau.append(load)
     raw = {"t": np.concatenate(t), "q": np.concatenate(q), "qd": np.concatenate(qd), "tau": np.concatenate(tau)}
-    return _Data(list(prepared), rows, np.concatenate(fold_ids), raw)
+    return _Data(list(prepared), rows, np.concatenate(fold_ids), raw, loads)
 
 
 def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
-    """The candidate's basis, low-pass filtered per recording, at the selected rows."""
+    """The candidate's basis, low-pass filtered per recording, at the selected rows (cached)."""
+    cached = data.cache.get(spec)
+    if cached is not None:
+        return cached
     out = []
-    for item, idx in zip(data.prepared, data.rows, strict=True):
+    for item, idx, load in zip(data.prepared, data.rows, data.loads, strict=True):
         s = item.signals
-        phi = spec.basis(s.t_s, s.q_rad, s.qd_rad_s, item.recording.tau_nm)
+        phi = spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load)
         out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
-    return np.concatenate(out)
+    columns = np.concatenate(out)
+    data.cache[spec] = columns
+    return columns
 
 
 def _stage_one(kind: str, description: RobotDescription) -> FrictionModel:
@@ -201,13 +217,18 @@ def _stage_one(kind: str, description: RobotDescription) -> FrictionModel:
     return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
 
-def _joint_base(data: _Data, friction: FrictionModel, joint: int, offsets: bool) -> tuple[np.ndarray, np.ndarray]:
+def _joint_base(
+    data: _Data, friction: FrictionModel, joint: int, offsets: bool, network: FrictionModel | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     cols, ys = [], []
     for item, idx in zip(data.prepared, data.rows, strict=True):
         s = item.signals
         parts = [s.rigid_regressor[idx, joint, :]]
         phi = lowpass_batch(friction.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
         parts.append(phi[idx])
+        if network is not None:
+            psi = lowpass_batch(network.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
+            parts.append(psi[idx])
         if offsets:
             parts.append(np.ones((idx.size, 1)))
         cols.append(np.concatenate(parts, axis=1))
@@ -215,8 +236,16 @@ def _joint_base(data: _Data, friction: FrictionModel, joint: int, offsets: bool)
     return np.concatenate(cols), np.concatenate(ys)
 
 
-def _candidates(data: _Data, joint: int, n: int, residual: np.ndarray, options: ResidualOptions, has_offsets: bool) -> list[BasisSpec]:
-    """Candidate effects for one joint."""
+def _candidates(
+    data: _Data,
+    joint: int,
+    n: int,
+    residual: np.ndarray,
+    options: ResidualOptions,
+    has_offsets: bool,
+    velocity_covered: tuple[int, ...] = (),
+) -> list[BasisSpec]:
+    """Candidate effects for one joint (``velocity_covered``: velocities the friction already maps)."""
     raw = data.raw
     specs: list[BasisSpec] = []
     names = [f"q{i + 1}" for i in range(n)] + [f"q{a + 1}-q{b + 1}" for a in range(n) for b in range(a + 1, n)]
@@ -230,23 +259,24 @@ def _candidates(data: _Data, joint: int, n: int, residual: np.ndarray, options: 
             specs.append(BasisSpec(joint, name, "smooth", "none", float(lo), float(hi), count))
         for count in options.modulated_counts:
             specs.append(BasisSpec(joint, name, "smooth", "sign", float(lo), float(hi), count))
+            specs.append(BasisSpec(joint, name, "smooth", "both", float(lo), float(hi), count))
         frequency = _dominant_frequency(x[selected], residual, float(hi - lo))
         if frequency is not None:
             specs.append(BasisSpec(joint, name, "periodic", "none", frequency=frequency, harmonics=options.harmonics))
     for k in range(n):
-        if k == joint:
+        if k == joint or k in velocity_covered:
             continue
         x = raw["qd"][:, k]
         lo, hi = np.percentile(x, [0.5, 99.5])
         if hi - lo > 1e-3:
             specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "none", float(lo), float(hi), 6))
     if not has_offsets:
-        # The motor torque is the fitted quantity: as a variable it is only independent of the
-        # residual when rigid-body terms carry most of it (robots with a model).
+        # The load is the rigid-body model torque (see teleop_force.effects): robots with a model.
         specs.append(BasisSpec(joint, f"tau{joint + 1}", "abs", "sign"))
     specs.append(BasisSpec(joint, "t", "linear", "none"))
     specs.append(BasisSpec(joint, "t", "linear", "sign"))
-    specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
+    if joint not in velocity_covered:
+        specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
     if not has_offsets:
         specs.append(BasisSpec(joint, "t", "constant", "none"))
     specs.append(BasisSpec(joint, "t", "constant", "positive"))
@@ -277,14 +307,19 @@ def trace_residual(
     options = options or ResidualOptions()
     config = config or FilterConfig()
     prepared, base = prepare(recordings, description, config)
-    data = _select_rows(prepared, options)
     n = description.n_joints
     offsets = not description.has_rigid_body
-    friction = _stage_one(options.friction, description)
+    friction = _stage_one("cv" if options.friction == "cv" else "coupled-cv", description)
+    stage_one = _stage_one_fit(prepared, base, friction, offsets)
+    data = _select_rows(prepared, options, stage_one[: 0 if base is None else base.count])
+    network = None
+    if options.friction == "wn":
+        network = _baseline_network(prepared, description, base, friction, offsets, stage_one)
     designs = []
     for j in range(n):
-        columns, y = _joint_base(data, friction, j, offsets)
+        columns, y = _joint_base(data, friction, j, offsets, network)
         designs.append(_Design(columns, y, data.folds, options.folds, options.ridge))
+    covered = description.friction_inputs if network is not None else tuple(() for _ in range(n))
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()
     accepted: list[TracedEffect] = []
@@ -296,7 +331,7 @@ def trace_residual(
             base_errors = design.held_out_errors()
             theta = np.linalg.lstsq(design.base, design.y, rcond=None)[0]
             residual = design.y - design.base @ theta
-            for spec in _candidates(data, j, n, residual, options, offsets):
+            for spec in _candidates(data, j, n, residual, options, offsets, covered[j]):
                 cols = _filtered_columns(data, spec)
                 if not np.all(np.isfinite(cols)):
                     continue
@@ -319,10 +354,63 @@ def trace_residual(
         plots.append(_plot_data(data, design, spec, cols))
         design.add(cols)
         current[j] = after_j
-    model = _final_model(prepared, description, base, friction, [e.spec for e in accepted], config, offsets, accepted)
+    model = _final_model(
+        prepared, description, base, friction, [e.spec for e in accepted], config, offsets, accepted,
+        stage_one[: 0 if base is None else base.count],
+    )
+    if network is not None:
+        model = _with_network(model, prepared, description)
     return ResidualReport(
         before, current, tuple(accepted), model, int(data.folds.size), tuple(history), {"effects": plots}
     )
+
+
+def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Parameters of the stage-one fit (rigid body, CV friction, offsets) on all data."""
+    from teleop_force.model_fitting import _stack_regressor
+
+    regressor, torque = _stack_regressor(prepared, friction, offsets)
+    return least_squares(regressor, torque, [f"p{i}" for i in range(regressor.shape[2])]).parameters
+
+
+def _baseline_network(prepared, description, base, friction, offsets, theta):  # type: ignore[no-untyped-def]
+    """The batch-fitted wavelet network of the model the residual is taken from."""
+    from teleop_force.model_fitting import WaveletOptions
+    from teleop_force.wavelet_training import train_wavelet_network
+
+    r = 0 if base is None else base.count
+    p_f = int(sum(friction.parameter_counts()))
+    fallback = CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+    if isinstance(friction, CoupledCoulombViscous):
+        fallback.parameters = theta[r : r + p_f].copy()
+    offsets_nm = theta[r + p_f :] if offsets else np.zeros(description.n_joints)
+    network, _ = train_wavelet_network(
+        prepared, description, theta[:r], offsets_nm, fallback, WaveletOptions("batch")
+    )
+    return network
+
+
+def _with_network(model: DynamicModel, prepared: Sequence[PreparedRecording], description: RobotDescription) -> DynamicModel:
+    """Retrain the wavelet network on what the rigid body, offsets and effects leave."""
+    from dataclasses import replace
+
+    from teleop_force.model_fitting import WaveletOptions
+    from teleop_force.wavelet_training import train_wavelet_network
+
+    known = []
+    for item in prepared:
+        s = item.signals
+        load = np.einsum("kjp,p->kj", s.rigid_regressor, model.base_values)
+        effects = model.effects_torque(s.t_s, s.q_rad, s.qd_rad_s, load)
+        known.append(lowpass_batch(effects, s.t_s, s.config.cutoff_hz))
+    fallback = model.friction
+    if not isinstance(fallback, CoupledCoulombViscous):
+        return model
+    network, _ = train_wavelet_network(
+        prepared, description, model.base_values, model.offsets_nm, fallback, WaveletOptions("batch"),
+        known_torque_l=known,
+    )
+    return replace(model, friction=network)
 
 
 def _plot_data(data: _Data, design: _Design, spec: BasisSpec, cols: np.ndarray) -> dict[str, Any]:
@@ -340,8 +428,12 @@ def _plot_data(data: _Data, design: _Design, spec: BasisSpec, cols: np.ndarray) 
     return {"spec": spec, "x": x, "before": before, "after": after}
 
 
-def _final_model(prepared, description, base, friction, specs, config, offsets, accepted) -> DynamicModel:  # type: ignore[no-untyped-def]
-    """Refit rigid body, friction and all effects together on all data."""
+def _final_model(prepared, description, base, friction, specs, config, offsets, accepted, load_values) -> DynamicModel:  # type: ignore[no-untyped-def]
+    """Refit rigid body, friction and all effects together on all data.
+
+    The effects' load variable is the rigid-body torque of ``load_values`` (stage one); the
+    saved model evaluates it with its own, refitted, rigid body (nearly the same).
+    """
     n = description.n_joints
     counts = friction.parameter_counts()
     p_f = int(sum(counts))
@@ -362,8 +454,9 @@ def _final_model(prepared, description, base, friction, specs, config, offsets, 
         if offsets:
             a[:, :, col : col + n] = np.eye(n)
             col += n
+        load = np.einsum("kjp,p->kj", s.rigid_regressor, load_values)
         for spec in specs:
-            phi = lowpass_batch(spec.basis(s.t_s, s.q_rad, s.qd_rad_s, item.recording.tau_nm), s.t_s, config.cutoff_hz)
+            phi = lowpass_batch(spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load), s.t_s, config.cutoff_hz)
             a[:, spec.joint, col : col + spec.size] = phi[v]
             col += spec.size
         blocks.append(a)

@@ -1,4 +1,4 @@
-"""Built-in robot descriptions by name (``omni``, ``none``...)."""
+"""Robot descriptions by name: built-in robots and description files."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from teleop_force.errors import ModelError
 from teleop_force.omni import omni_description
 from teleop_force.robot import RobotDescription
 
-BUILTIN_ROBOTS = ("none", "omni")
+BUILTIN_ROBOTS = ("none", "omni", "dvrk-mtm", "teststand")
 
 
 def friction_only_description(n_joints: int) -> RobotDescription:
-    """A robot with no rigid-body terms: friction and found effects only (``--robot none``)."""
+    """Return a robot without rigid-body terms: friction and found effects only (``none``)."""
     return RobotDescription(
         name="none",
         model=None,
@@ -24,11 +24,30 @@ def friction_only_description(n_joints: int) -> RobotDescription:
 
 
 def resolve_robot(name: str, n_joints: int | None = None) -> RobotDescription:
-    """Return the description called ``name`` (``none`` needs ``n_joints``)."""
+    """Return the description called ``name``: a built-in robot or a ``.json``/``.toml`` file.
+
+    ``none`` needs ``n_joints``; a description file's path is resolved from the current
+    folder (the description then carries its absolute path as its name).
+    """
     if name == "omni":
         return omni_description()
     if name == "none":
         if n_joints is None:
             raise ModelError("robot 'none' needs the number of joints")
         return friction_only_description(n_joints)
-    raise ModelError(f"unknown robot {name!r}; built-in robots: {', '.join(BUILTIN_ROBOTS)}")
+    if name == "dvrk-mtm":
+        from teleop_force.dvrk_mtm import dvrk_mtm_description
+
+        return dvrk_mtm_description()
+    if name == "teststand":
+        from teleop_force.teststand import teststand_description
+
+        return teststand_description()
+    from teleop_force.robot_file import load_robot_description, looks_like_robot_file
+
+    if looks_like_robot_file(name):
+        return load_robot_description(name)
+    raise ModelError(
+        f"unknown robot {name!r}; built-in robots: {', '.join(BUILTIN_ROBOTS)}, "
+        "or a robot description file (.json or .toml)"
+    )

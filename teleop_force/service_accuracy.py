@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -71,29 +72,31 @@ class ForceAccuracy:
         self.latest_true: tuple[float, float, float] | None = None
         self.latest_estimate: tuple[float, float, float] | None = None
 
-    def add_true(self, seq: int, force_n: tuple[float, float, float]) -> None:
+    def add_true(self, seq: int, force_n: Sequence[float]) -> None:
         """Add the true force of tick ``seq``."""
+        force = (float(force_n[0]), float(force_n[1]), float(force_n[2]))
         with self._lock:
-            self.latest_true = force_n
+            self.latest_true = force
             estimate = self._estimated.pop(seq, None)
             if estimate is None:
-                _bounded_put(self._true, seq, force_n)
+                _bounded_put(self._true, seq, force)
             else:
-                self._pair(seq, estimate, force_n)
+                self._pair(seq, estimate, force)
 
-    def add_estimate(self, source_seq: int, force_n: tuple[float, float, float]) -> None:
+    def add_estimate(self, source_seq: int, force_n: Sequence[float]) -> None:
         """Add an estimate computed from the joint state of tick ``source_seq``."""
+        force = (float(force_n[0]), float(force_n[1]), float(force_n[2]))
         with self._lock:
-            self.latest_estimate = force_n
-            if any(math.isnan(x) for x in force_n):
+            self.latest_estimate = force
+            if any(math.isnan(x) for x in force):
                 self.no_force += 1
                 self._true.pop(source_seq, None)
                 return
             true = self._true.pop(source_seq, None)
             if true is None:
-                _bounded_put(self._estimated, source_seq, force_n)
+                _bounded_put(self._estimated, source_seq, force)
             else:
-                self._pair(source_seq, force_n, true)
+                self._pair(source_seq, force, true)
 
     def _pair(
         self, seq: int, estimate: tuple[float, float, float], true: tuple[float, float, float]
@@ -144,7 +147,9 @@ class ForceAccuracy:
         return result
 
 
-def _bounded_put(table: dict[int, tuple[float, float, float]], key: int, value: Any) -> None:
+def _bounded_put(
+    table: dict[int, tuple[float, float, float]], key: int, value: tuple[float, float, float]
+) -> None:
     if len(table) >= _MAX_PENDING:
         table.pop(next(iter(table)))
     table[key] = value

@@ -54,7 +54,9 @@ class OnlineAdaptation:
         config = estimator.model.filter_config
         mid = 0.5 * (robot.description.q_min_rad + robot.description.q_max_rad)
         inertia = np.diag(robot.mass_matrix(mid))
-        self.adapter = LyapunovAdapter(network, cutoff_hz=config.cutoff_hz, inertia_kgm2=inertia)
+        self.adapter = LyapunovAdapter(
+            network, cutoff_hz=config.cutoff_hz, inertia_kgm2=tuple(inertia.tolist())
+        )
         self._lag = config.torque_lag_samples
         self._angle = LowPass(config.velocity_cutoff_hz)
         self._torque_prefilter = LowPass(config.velocity_cutoff_hz)

@@ -8,6 +8,7 @@ liveliness token disappears at once), close recordings, write its final statisti
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import threading
@@ -20,6 +21,13 @@ from teleop_force.errors import DataError
 #: GIL switch interval of the real-time processes [s]: a Zenoh callback waiting for the GIL
 #: held by a busy loop gets it within this time (Python's default is 5 ms).
 REALTIME_SWITCH_INTERVAL_S = 2e-4
+
+
+#: Environment variable through which a supervisor (``teleop-force demo``) gives its children
+#: its process id: a child whose parent is no longer that process stops by itself.
+SUPERVISOR_PID_ENV = "TELEOP_FORCE_SUPERVISOR_PID"
+#: How often an orphan check runs [s].
+ORPHAN_CHECK_PERIOD_S = 0.25
 
 
 def use_realtime_switch_interval() -> None:
@@ -40,6 +48,27 @@ class StopSignal:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, self._handle)
             signal.signal(signal.SIGTERM, self._handle)
+        return self
+
+    def watch_supervisor(self) -> StopSignal:
+        """Set the flag once the supervisor named by ``$TELEOP_FORCE_SUPERVISOR_PID`` is gone.
+
+        A backstop for ``PR_SET_PDEATHSIG``: the child polls its parent process id in a daemon
+        thread, so it stops even where that signal is unavailable or was not delivered.
+        Without the variable (a process started by hand) nothing is watched. Returns self.
+        """
+        value = os.environ.get(SUPERVISOR_PID_ENV, "")
+        if not value.isdigit():
+            return self
+        supervisor = int(value)
+
+        def watch() -> None:
+            while not self._event.wait(ORPHAN_CHECK_PERIOD_S):
+                if os.getppid() != supervisor:
+                    self.signal_name = "supervisor gone"
+                    self._event.set()
+
+        threading.Thread(target=watch, name="orphan-watch", daemon=True).start()
         return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:

@@ -96,6 +96,29 @@ def declare_json_queryable(
         raise TransportError(f"{key}: cannot declare queryable: {zenoh_error_text(exc)}") from None
 
 
+def declare_queryable(
+    session: zenoh.Session, key: str, callback: Callable[[zenoh.Query], Any]
+) -> zenoh.Queryable[None]:
+    """Declare a queryable calling ``callback(query)`` (it may reply later, from any thread)."""
+    try:
+        return session.declare_queryable(key, callback)
+    except zenoh.ZError as exc:
+        raise TransportError(f"{key}: cannot declare queryable: {zenoh_error_text(exc)}") from None
+
+
+def reply_json(query: zenoh.Query, key: str, value: Any) -> None:
+    """Reply ``json.dumps(value)`` to ``query`` (an error reply if it cannot be serialised)."""
+    try:
+        try:
+            payload = json.dumps(value, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            query.reply_err(f"cannot serialise reply: {exc}")
+            return
+        query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+    except zenoh.ZError:  # the querier or the session went away: nobody to tell
+        return
+
+
 def query_json(session: zenoh.Session, key: str, timeout_s: float = 2.0) -> Any:
     """Query ``key`` and return the first reply decoded from JSON.
 
@@ -126,11 +149,14 @@ def wait_for_subscribers(
     *,
     settle_s: float = DEFAULT_SETTLE_S,
     stop: Callable[[], bool] | None = None,
+    ready: Callable[[], bool] | None = None,
 ) -> bool:
-    """Wait until ``publisher`` has a matching subscriber, then ``settle_s`` more.
+    """Wait until ``publisher`` has a matching subscriber (and ``ready()``), then ``settle_s``.
 
-    Returns whether a subscriber was matched within ``timeout_s`` (``stop()`` returning True
-    also ends the wait, with False).
+    ``ready`` names a particular peer when any subscriber would not do (e.g. "the slave's
+    liveliness token is present": it declares its subscriber before its token). Returns
+    whether both held within ``timeout_s`` (``stop()`` returning True also ends the wait,
+    with False).
     """
     if timeout_s < 0.0 or settle_s < 0.0:
         raise ConfigurationError("timeout_s and settle_s must be >= 0")
@@ -140,7 +166,7 @@ def wait_for_subscribers(
             matched = publisher.matching_status
         except zenoh.ZError as exc:
             raise TransportError(f"matching status unavailable: {zenoh_error_text(exc)}") from None
-        if matched:
+        if matched and (ready is None or ready()):
             break
         if time.perf_counter() >= deadline or (stop is not None and stop()):
             return False

@@ -236,14 +236,17 @@ def read_dat(path: Path, n_values: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_teststand_folder(
-    folder: str | os.PathLike[str], torque_source: str = "measured"
+    folder: str | os.PathLike[str], torque_source: str = "target"
 ) -> TeststandLog:
     """Read the test stand's ``.dat`` logs from ``folder`` and align them on the tick.
 
     Only ticks present in every file that is there are kept (the files start together but
     end at slightly different ticks). ``torque_source`` chooses the torques the recording
-    carries: ``measured`` (motor current, the default: what the motors actually applied) or
-    ``target`` (what the controller asked for).
+    carries: ``target`` (the default: the torques sent to the motor drivers, the project's
+    convention of a commanded torque acting over the next sample, and the one a sensorless
+    estimator always has) or ``measured`` (motor current x torque constant x gear: the same
+    signal plus current-sensing noise; on the published set it gives a slightly larger force
+    error, see ``docs/robots.md``).
     """
     folder = Path(folder)
     if torque_source not in TORQUE_SOURCES:

@@ -27,15 +27,18 @@ fill the directions they do not excite. The force is then
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import ConfigurationError, DataError, SingularityError
 from teleop_force.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import filtered_derivative_batch, lowpass_batch
 from teleop_force.model_fitting import prepare
@@ -57,14 +60,19 @@ class TeststandOptions:
         prior_weight: Weight of the nominal parameters against the free-phase data, as a
             fraction of the data's column norms (0: plain least squares).
         slider: Whether the model carries the slider-acceleration term.
+
     """
 
-    filter: FilterConfig = FilterConfig(cutoff_hz=20.0, velocity_cutoff_hz=100.0, warmup_s=0.05)
+    filter: FilterConfig = field(
+        default_factory=lambda: FilterConfig(
+            cutoff_hz=40.0, velocity_cutoff_hz=200.0, warmup_s=0.05
+        )
+    )
     free_force_n: float = 1.0
     guard_s: float = 0.02
     friction: str = "cv"
-    prior_weight: float = 0.1
-    slider: bool = True
+    prior_weight: float = 0.3
+    slider: bool = False
 
     def __post_init__(self) -> None:
         if not self.free_force_n > 0:
@@ -85,6 +93,7 @@ class TeststandModel:
         model: The project's model (rigid body, friction); the slider term is not part of it.
         slider: Whether estimates add the slider-acceleration term.
         free_samples: Number of samples identification used.
+
     """
 
     model: DynamicModel
@@ -93,7 +102,7 @@ class TeststandModel:
 
 
 def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -> np.ndarray:
-    """Samples whose ground-truth force is below ``free_force_n`` with ``guard_s`` to spare."""
+    """Return the samples whose ground-truth force is below ``free_force_n``, ``guard_s`` away."""
     if recording.f_tip_in_base_n is None:
         raise DataError("no ground-truth force to tell the free phases", path=recording.source)
     contact = np.linalg.norm(recording.f_tip_in_base_n, axis=1) >= free_force_n
@@ -108,9 +117,16 @@ def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -
 
 
 def slider_regressor(
-    description: RobotDescription, signals: FilteredSignals, base: BaseParameters
+    description: RobotDescription,
+    signals: FilteredSignals,
+    base: BaseParameters,
+    base_velocity_mps: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``L(Y_g(q) a / g)``, the filtered slider-term regressor ``(N, n, r)`` (see module doc)."""
+    """``L(Y_g(q) a / g)``, the filtered slider-term regressor ``(N, n, r)`` (see module doc).
+
+    The base's vertical velocity is ``base_velocity_mps`` when given (e.g. from the height
+    sensor), else the contact kinematics' ``-J_z(q) qd``.
+    """
     regressor = RigidBodyRegressor(description)
     robot = Robot(description)
     cols = base.independent
@@ -121,7 +137,10 @@ def slider_regressor(
     momentum = np.empty((n_samples, n, cols.size))
     drift = np.empty_like(momentum)
     for k in range(n_samples):
-        v_z = -(robot.tip_jacobian_in_base(q[k])[2] @ qd[k])
+        if base_velocity_mps is None:
+            v_z = -(robot.tip_jacobian_in_base(q[k])[2] @ qd[k])
+        else:
+            v_z = float(base_velocity_mps[k])
         y_g = regressor.coriolis_gravity(q[k], zero)[:, cols]
         momentum[k] = y_g * v_z / g
         speed = float(np.linalg.norm(qd[k]))
@@ -133,7 +152,9 @@ def slider_regressor(
         else:
             drift[k] = 0.0
     cutoff = signals.config.cutoff_hz
-    return filtered_derivative_batch(momentum, signals.t_s, cutoff) - lowpass_batch(drift, signals.t_s, cutoff)
+    return filtered_derivative_batch(momentum, signals.t_s, cutoff) - lowpass_batch(
+        drift, signals.t_s, cutoff
+    )
 
 
 def _friction(kind: str, description: RobotDescription) -> FrictionModel:
@@ -147,35 +168,52 @@ def _design(
     recording: Recording,
     options: TeststandOptions,
     base: BaseParameters | None,
+    base_velocity_mps: np.ndarray | None = None,
 ) -> tuple[FilteredSignals, BaseParameters, np.ndarray, np.ndarray, FrictionModel]:
     prepared, base = prepare([recording], description, options.filter, base)
-    assert base is not None  # noqa: S101 - descriptions here always have a rigid body
+    assert base is not None
     signals = prepared[0].signals
     rigid = signals.rigid_regressor
     if options.slider:
-        rigid = rigid + slider_regressor(description, signals, base)
+        rigid = rigid + slider_regressor(description, signals, base, base_velocity_mps)
     friction = _friction(options.friction, description)
     n = description.n_joints
     p_f = int(sum(friction.parameter_counts()))
     fric = np.zeros((signals.n_samples, n, p_f))
     for j in range(n):
-        basis = lowpass_batch(friction.basis(j, signals.qd_rad_s), signals.t_s, options.filter.cutoff_hz)
+        basis = lowpass_batch(
+            friction.basis(j, signals.qd_rad_s), signals.t_s, options.filter.cutoff_hz
+        )
         fric[:, j, friction.joint_slice(j)] = basis
     return signals, base, rigid, fric, friction
 
 
 def identify_teststand(
-    recording: Recording, description: RobotDescription, options: TeststandOptions | None = None
+    recording: Recording,
+    description: RobotDescription,
+    options: TeststandOptions | None = None,
+    base_velocity_mps: np.ndarray | None = None,
 ) -> TeststandModel:
-    """Identify the leg on the samples without contact (see the module docstring)."""
+    """Identify the leg on the samples without contact (see the module docstring).
+
+    ``base_velocity_mps``: the slider's vertical velocity for the slider term (default: the
+    contact kinematics, which off the ground holds only while the foot stays low).
+    """
     options = options or TeststandOptions()
-    signals, base, rigid, fric, friction = _design(description, recording, options, None)
+    signals, base, rigid, fric, friction = _design(
+        description, recording, options, None, base_velocity_mps
+    )
     free = free_phase_mask(recording, options.free_force_n, options.guard_s) & signals.valid
     if int(free.sum()) < 10:
-        raise DataError(f"only {int(free.sum())} samples without contact to identify from", path=recording.source)
+        raise DataError(
+            f"only {int(free.sum())} samples without contact to identify from",
+            path=recording.source,
+        )
     regressor = np.concatenate((rigid, fric), axis=2)[free]
     torque = signals.tau_lowpassed_nm[free]
-    nominal = np.concatenate((base.project(full_parameters(description, np.zeros(0))), np.zeros(fric.shape[2])))
+    nominal = np.concatenate(
+        (base.project(full_parameters(description, np.zeros(0))), np.zeros(fric.shape[2]))
+    )
     theta = _regularised_fit(regressor, torque, nominal, options.prior_weight)
     r = base.count
     friction.parameters = theta[r:].copy()
@@ -198,8 +236,10 @@ def identify_teststand(
     return TeststandModel(model, options.slider, int(free.sum()))
 
 
-def nominal_teststand_model(description: RobotDescription, options: TeststandOptions | None = None) -> TeststandModel:
-    """The URDF (nominal) rigid body, no friction: the model before any identification."""
+def nominal_teststand_model(
+    description: RobotDescription, options: TeststandOptions | None = None
+) -> TeststandModel:
+    """Return the URDF (nominal) rigid body without friction: the model before identification."""
     options = options or TeststandOptions()
     regressor = RigidBodyRegressor(description)
     base = regressor.find_base_parameters()
@@ -219,9 +259,11 @@ def nominal_teststand_model(description: RobotDescription, options: TeststandOpt
     return TeststandModel(model, options.slider, 0)
 
 
-def _regularised_fit(regressor: np.ndarray, torque: np.ndarray, nominal: np.ndarray, weight: float) -> np.ndarray:
-    """Joint-weighted least squares pulled towards ``nominal`` (column-scaled ridge)."""
-    n_samples, n_joints, n_params = regressor.shape
+def _regularised_fit(
+    regressor: np.ndarray, torque: np.ndarray, nominal: np.ndarray, weight: float
+) -> np.ndarray:
+    """Least squares pulled towards ``nominal`` (ridge on the column-scaled parameters)."""
+    n_params = regressor.shape[2]
     a = regressor.reshape(-1, n_params)
     b = torque.reshape(-1)
     scale = np.linalg.norm(a, axis=0)
@@ -255,7 +297,33 @@ def estimate_forces(
     forces = np.full((recording.n_samples, 3), np.nan)
     for k in range(recording.n_samples):
         try:
-            forces[k] = robot.tip_force_from_joint_torque(recording.q_rad[k], tau_external[k], sigma_min)
+            forces[k] = robot.tip_force_from_joint_torque(
+                recording.q_rad[k], tau_external[k], sigma_min
+            )
         except SingularityError:
             continue
     return forces
+
+
+def identify_teststand_command(
+    recordings: list[Recording],
+    description: RobotDescription,
+    friction_kind: str,
+    output: str | os.PathLike[str],
+    log: Callable[[str], None],
+) -> int:
+    """``teleop-force identify --robot teststand``: identify on the free phases, save the model."""
+    if len(recordings) != 1:
+        raise ConfigurationError("the test stand is identified from one log folder at a time")
+    if friction_kind == "wn":
+        raise ConfigurationError(
+            "teststand: the phases without contact are too short (about 0.1 s) to train a "
+            "wavelet network; use --friction cv or coupled-cv"
+        )
+    identified = identify_teststand(
+        recordings[0], description, TeststandOptions(friction=friction_kind)
+    )
+    identified.model.save(Path(output))
+    log(f"identified on {identified.free_samples} samples without contact (|F| < 1 N)")
+    log(f"model written to {output}")
+    return 0

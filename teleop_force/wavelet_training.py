@@ -52,11 +52,14 @@ def train_wavelet_network(
     fallback: CoupledCoulombViscous,
     options: WaveletOptions,
     inertia_kgm2: np.ndarray | None = None,
+    known_torque_l: Sequence[np.ndarray] | None = None,
 ) -> tuple[WaveletNetwork, dict[str, Any]]:
     """Return the trained network and figures (sizes reached, speed, fit error).
 
     ``inertia_kgm2`` (diagonal of ``M`` at a typical pose) weights the momentum-coordinate
     prediction error so the paper's gains keep their meaning (its error is a velocity).
+    ``known_torque_l`` (one ``(N, n)`` array per recording) is filtered torque already explained
+    by other terms (found effects), subtracted from the network's target.
     """
     qd_max = np.max([np.max(np.abs(p.signals.qd_rad_s[p.signals.valid]), axis=0) for p in prepared], axis=0)
     specs = wavelet_specs(description, qd_max)
@@ -69,13 +72,14 @@ def train_wavelet_network(
     )
     network = WaveletNetwork(description.n_joints, specs, fallback=fallback, coverage=coverage)
     details: dict[str, Any] = {"wn_method": options.method}
+    known = list(known_torque_l) if known_torque_l is not None else [0.0] * len(prepared)
     if options.method == "batch":
         t_all, qd_all, target_all = [], [], []
         t_offset = 0.0
-        for item in prepared:
+        for item, extra in zip(prepared, known, strict=True):
             s = item.signals
             rigid = np.einsum("kjp,p->kj", s.rigid_regressor, base_values)
-            target = s.tau_lowpassed_nm - rigid - lowpass_batch(
+            target = s.tau_lowpassed_nm - extra - rigid - lowpass_batch(
                 np.broadcast_to(offsets_nm, s.qd_rad_s.shape), s.t_s, s.config.cutoff_hz
             )
             t_all.append(s.t_s[s.valid] - s.t_s[0] + t_offset)
@@ -107,13 +111,13 @@ def train_wavelet_network(
     samples = 0
     sizes_history: list[list[int]] = []
     for _ in range(options.passes):
-        for item in prepared:
+        for item, extra in zip(prepared, known, strict=True):
             s = item.signals
             p_l = np.einsum("kjp,p->kj", s.y_momentum_lowpassed, base_values)
             w_l = np.einsum("kjp,p->kj", s.y_lowpassed, base_values) + lowpass_batch(
                 np.broadcast_to(offsets_nm, s.qd_rad_s.shape), s.t_s, s.config.cutoff_hz
             )
-            u_l = s.tau_lowpassed_nm - w_l
+            u_l = s.tau_lowpassed_nm - extra - w_l
             v = s.valid
             result = adapter.run(s.t_s[v], s.qd_rad_s[v], p_l[v], u_l[v])
             wall += result.wall_time_s

@@ -17,7 +17,8 @@ from teleop_force.errors import ConfigurationError
 #: The repository (parent of the ``web`` package).
 PROJECT_ROOT: Final = Path(__file__).resolve().parents[1]
 MODEL_SUFFIXES: Final = (".json",)
-RECORDING_SUFFIXES: Final = (".mcap", ".csv")
+#: What ``teleop-force replay`` plays: recorded sessions.
+RECORDING_SUFFIXES: Final = (".mcap",)
 #: Longest list offered in a dropdown.
 MAX_LISTED: Final = 500
 

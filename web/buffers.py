@@ -91,15 +91,14 @@ class RingBuffer:
         """
         with self._lock:
             n, cap, nxt = self._count, self._t.shape[0], self._next
-            if n < cap:
-                t = self._t[:n].copy()
-                v = self._v[:n].copy()
-            else:
-                t = np.concatenate((self._t[nxt:], self._t[:nxt]))
-                v = np.concatenate((self._v[nxt:], self._v[:nxt]))
-        if t_from_s is not None and t.size:
-            start = int(np.searchsorted(t, t_from_s, side="left"))
-            t, v = t[start:], v[start:]
+            oldest = 0 if n < cap else nxt
+            order_t = self._t[:n] if n < cap else np.concatenate((self._t[nxt:], self._t[:nxt]))
+            start = 0
+            if t_from_s is not None and order_t.size:
+                start = int(np.searchsorted(order_t, t_from_s, side="left"))
+            rows = (oldest + start + np.arange(n - start)) % cap  # only the rows asked for
+            t = order_t[start:].copy()
+            v = self._v[rows]
         return Window(t, v)
 
 
@@ -125,18 +124,22 @@ def bin_mean(
         raise ValueError(f"t has {t.shape[0]} samples, values {v.shape[0]}")
     width = (t_end - t_start) / n_bins
     centres = t_start + width * (np.arange(n_bins) + 0.5)
-    index = np.floor((t - t_start) / width).astype(np.int64)
-    inside = (index >= 0) & (index < n_bins)
-    index = index[inside]
-    v = v[inside]
-    finite = np.isfinite(v)
+    if t.size > 1 and np.any(np.diff(t) < 0):  # rows in arrival order need not be sorted
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+    # Bins are contiguous runs of the sorted samples: sum each run with one reduceat.
+    bounds = np.searchsorted(t, t_start + width * np.arange(n_bins + 1), side="left")
+    starts, stops = bounds[:-1], bounds[1:]
+    nonempty = stops > starts
     out = np.full((n_bins, v.shape[1]), np.nan)
-    for k in range(v.shape[1]):
-        ok = finite[:, k]
-        counts = np.bincount(index[ok], minlength=n_bins)
-        sums = np.bincount(index[ok], weights=v[ok, k], minlength=n_bins)
-        has = counts > 0
-        out[has, k] = sums[has] / counts[has]
+    if not np.any(nonempty):
+        return centres, out
+    rows = v[: bounds[-1]]
+    finite = np.isfinite(rows)
+    sums = np.add.reduceat(np.where(finite, rows, 0.0), starts[nonempty], axis=0)
+    counts = np.add.reduceat(finite.astype(np.int64), starts[nonempty], axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out[nonempty] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
     return centres, out
 
 

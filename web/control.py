@@ -1,22 +1,27 @@
-"""Requests from the dashboard to the force-estimation service, over Zenoh queries.
+"""Requests from the dashboard to the force-estimation service (``teleop_force/service.py``).
 
-Every request is a Zenoh ``get`` with a JSON payload, so the dashboard can show the service's
-answer (or "no reply"). Keys and payloads (``<d>`` is the slave's device id):
+Keys and payloads (``<d>`` is the slave's device id):
 
-=====================================  ==================================================
-key                                    payload (JSON)
-=====================================  ==================================================
-``omni/<d>/service/model``             none: reply with the model JSON (DynamicModel.to_dict)
-``omni/<d>/service/model``             ``{"load": "/abs/path/model.json"}``
-``omni/<d>/service/stats``             none: reply with the statistics JSON
-``omni/<d>/service/control``           ``{"record": "start", "path": "/abs/recordings/x.mcap"}``
-``omni/<d>/service/control``           ``{"record": "stop"}``
-``omni/<d>/service/control``           ``{"adaptation": true}`` or ``{"adaptation": false}``
-=====================================  ==================================================
+=============================  =======  ==================================================
+key                            how      payload
+=============================  =======  ==================================================
+``omni/<d>/service/model``     get      none: reply = the model JSON (DynamicModel.to_dict)
+``omni/<d>/service/stats``     get      none: reply = the statistics JSON
+``omni/<d>/service/adapt``     put      ``on`` / ``off`` (what the service subscribes to)
+``omni/<d>/service/model``     get      ``{"load": "/abs/path/model.json"}``
+``omni/<d>/service/control``   get      ``{"record": "start", "path": "/abs/recordings/x.mcap"}``
+``omni/<d>/service/control``   get      ``{"record": "stop"}``
+=============================  =======  ==================================================
 
-Expected reply: one JSON object; ``{"ok": false, "error": "..."}`` (or a Zenoh error reply)
-reports a failure, anything else counts as success. Paths are absolute and were checked to lie
-inside the allowed folders (:mod:`web.allowlist`); the service should check them again.
+The first three are what the service implements today. Loading a model and starting or
+stopping a recording at run time are not implemented by the service yet (it loads ``--model``
+and records ``--record PATH`` at start): the dashboard sends the last three requests anyway
+and then *checks the service's statistics* (``model.path``, ``recording``, ``adaptation``) to
+tell the user what actually happened, so nothing is reported as done that was not.
+
+A get reply ``{"ok": false, "error": "..."}`` (or a Zenoh error reply) reports a refusal.
+Paths are absolute and were checked to lie inside the allowed folders (:mod:`web.allowlist`);
+the service should check them again.
 """
 
 from __future__ import annotations
@@ -72,9 +77,34 @@ def record_request(
     return control_key(device), {"record": "stop"}
 
 
-def adaptation_request(device: str, enabled: bool) -> tuple[str, dict[str, Any]]:
-    """Key and payload switching online adaptation of the friction model on or off."""
-    return control_key(device), {"adaptation": bool(enabled)}
+def adaptation_request(device: str, enabled: bool) -> tuple[str, str]:
+    """Key and payload (``on`` / ``off``, sent with a put) switching online adaptation."""
+    return keys.service_adapt(device), "on" if enabled else "off"
+
+
+def stats_model_path(stats: Any) -> Path | None:
+    """Return the model file the service reports running (``stats["model"]["path"]``)."""
+    model = stats.get("model") if isinstance(stats, dict) else None
+    path = model.get("path") if isinstance(model, dict) else None
+    return Path(path).resolve() if isinstance(path, str) and path else None
+
+
+def stats_adaptation(stats: Any) -> tuple[bool | None, str]:
+    """Return ``(enabled, note)`` of the adaptation from the service statistics."""
+    block = stats.get("adaptation") if isinstance(stats, dict) else None
+    if not isinstance(block, dict) or not isinstance(block.get("enabled"), bool):
+        return None, ""
+    return block["enabled"], str(block.get("note") or "")
+
+
+def stats_recording(stats: Any) -> str:
+    """Return one line about the service's recording, from its statistics."""
+    if not isinstance(stats, dict) or "recording" not in stats:
+        return "unknown"
+    rec = stats["recording"]
+    if not isinstance(rec, dict):
+        return "not recording"
+    return f"recording {Path(str(rec.get('path', '?'))).name} ({rec.get('messages', '?')} messages)"
 
 
 def recording_name(text: str, now: float | None = None) -> str:
@@ -158,9 +188,13 @@ class ServiceClient:
         return self.query(key, payload)
 
     def set_adaptation(self, enabled: bool) -> ServiceReply:
-        """Switch online adaptation on or off."""
+        """Put ``on`` / ``off`` on the adaptation key (no reply: confirm through the stats)."""
         key, payload = adaptation_request(self.device, enabled)
-        return self.query(key, payload)
+        try:
+            self._session.put(key, payload)
+        except zenoh.ZError as exc:
+            return ServiceReply(False, f"zenoh error: {exc}")
+        return ServiceReply(True, f"sent {payload!r} on {key}")
 
 
 def zenoh_cli_args(options: ZenohOptions) -> list[str]:
@@ -281,6 +315,9 @@ __all__ = [
     "record_request",
     "recording_name",
     "replay_command",
+    "stats_adaptation",
+    "stats_model_path",
+    "stats_recording",
     "teleop_force_command",
     "zenoh_cli_args",
 ]

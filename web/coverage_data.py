@@ -164,8 +164,10 @@ def trust_at(axis: AxisCoverage, points: np.ndarray) -> np.ndarray:
         return np.ones(pts.shape[0])
     shape = np.asarray(axis.trust.shape)
     lo, hi = np.asarray(axis.lo), np.asarray(axis.hi)
-    cell = np.floor((pts - lo) / ((hi - lo) / shape)).astype(np.int64)
-    inside = np.all((cell >= 0) & (cell < shape), axis=1) & np.all(np.isfinite(pts), axis=1)
+    finite = np.all(np.isfinite(pts), axis=1)
+    scaled = np.where(finite[:, None], (pts - lo) / ((hi - lo) / shape), -1.0)
+    cell = np.floor(np.clip(scaled, -1.0, shape)).astype(np.int64)
+    inside = np.all((cell >= 0) & (cell < shape), axis=1)
     out = np.zeros(pts.shape[0])
     if np.any(inside):
         out[inside] = axis.trust[tuple(cell[inside].T)]

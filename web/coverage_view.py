@@ -105,7 +105,7 @@ def render_background(info: CoverageInfo, model_key: str = "") -> Background:
     gs = fig.add_gridspec(2, 1, height_ratios=(4.2, 1.0), hspace=0.45)
     ax = fig.add_subplot(gs[0])
     ax1 = fig.add_subplot(gs[1])
-    fig.subplots_adjust(left=0.15, right=0.96, top=0.93, bottom=0.09)
+    fig.subplots_adjust(left=0.15, right=0.96, top=0.9, bottom=0.08)
 
     plane = info.plane
     (xl, yl) = _limits(plane, 2)
@@ -162,7 +162,7 @@ def render_background(info: CoverageInfo, model_key: str = "") -> Background:
     ax1.set_xlabel("qd1 [rad/s] (newest at the top)", fontsize=9)
     ax1.tick_params(labelsize=8)
     if info.message:
-        fig.text(0.5, 0.005, info.message, ha="center", va="bottom", fontsize=7.5,
+        fig.text(0.5, 0.995, info.message, ha="center", va="top", fontsize=7.5,
                  color="#5f6368")  # fmt: skip
 
     canvas.draw()

@@ -42,9 +42,13 @@ from web.control import (
     MIN_SPEED,
     ReplayProcess,
     ServiceClient,
+    adaptation_request,
     control_key,
     recording_name,
     replay_command,
+    stats_adaptation,
+    stats_model_path,
+    stats_recording,
     zenoh_cli_args,
 )
 from web.coverage_data import CoverageInfo, coverage_from_model, finite_or, unwrap_model
@@ -135,6 +139,7 @@ class Dashboard:
         self._recording_labels: dict[str, Path] = {}
         self._coverage = coverage_from_model(None)
         self._background: Background | None = None
+        self._fig4_shown: Background | None = None
         self._model_key = ""
         self._model_refresh = _Periodic(10.0)
         self._service_stats: Mapping[str, Any] | None = None
@@ -142,6 +147,7 @@ class Dashboard:
         self._tissue_source = "flag"
         self._model: Mapping[str, Any] | None = None
         self._banner = ""
+        self._panel_label = ""
         self.server = viser.ViserServer(host=config.host, port=config.port, label="teleop-force")
         self._build_gui()
 
@@ -179,16 +185,14 @@ class Dashboard:
         load = gui.add_button("Load model into the service")
         refresh = gui.add_button("Refresh file lists")
         self.model_status = gui.add_markdown(" ")
-        load.on_click(lambda _: self._spawn(self._load_model))
+        load.on_click(lambda _: self._load_model())
         refresh.on_click(lambda _: self._refresh_file_lists())
 
         gui.add_markdown("**Recording** (into recordings/)")
         self.record_name = gui.add_text("Name", initial_value="")
         rec_group = gui.add_button_group("Recording", ("Start", "Stop"))
         self.record_status = gui.add_markdown(" ")
-        rec_group.on_click(
-            lambda event: self._spawn(lambda: self._record(event.target.value == "Start"))
-        )
+        rec_group.on_click(lambda event: self._record(event.target.value == "Start"))
 
         gui.add_markdown("**Replay** (recordings/ only)")
         self.replay_dropdown = gui.add_dropdown("Recording", (NONE_OPTION,))
@@ -202,16 +206,18 @@ class Dashboard:
         gui.add_markdown("**Estimator**")
         self.adaptation = gui.add_checkbox("Online adaptation", initial_value=False)
         self.adaptation_status = gui.add_markdown(" ")
-        self.adaptation.on_update(lambda _: self._spawn(self._set_adaptation))
+        self.adaptation.on_update(lambda _: self._set_adaptation())
 
         gui.add_markdown("**Display**")
         show_true = gui.add_checkbox("Show true force", initial_value=True)
         show_ghost = gui.add_checkbox("Show master ghost", initial_value=True)
         show_true.on_update(lambda _: setattr(self.scene, "show_true_force", show_true.value))
         show_ghost.on_update(lambda _: setattr(self.scene, "show_ghost", show_ghost.value))
+        adapt_key, _ = adaptation_request(self.config.device, True)
+        record_key = control_key(self.config.device)
         gui.add_markdown(
-            f"Control key: `{control_key(self.config.device)}`; "
-            f"tissue plane at y = {self.config.tissue_y_m:+.3f} m unless the service reports one."
+            f"Keys: adaptation `{adapt_key}` (on/off), recording `{record_key}`;"
+            f" tissue plane at y = {self.config.tissue_y_m:+.3f} m unless the service reports one."
         )
         self._refresh_file_lists()
 
@@ -221,14 +227,28 @@ class Dashboard:
         _set_options(self.model_dropdown, list(self._model_labels))
         _set_options(self.replay_dropdown, list(self._recording_labels))
 
-    def _spawn(self, work: Callable[[], None]) -> None:
-        threading.Thread(target=work, daemon=True, name="dashboard-request").start()
-
     def _chosen(self, labels: Mapping[str, Path], choice: str, allowlist: Allowlist) -> Path:
         path = labels.get(choice)
         if path is None:
             raise PathNotAllowedError("choose a file from the list")
         return allowlist.resolve(path)  # checked again: the file may have changed since listed
+
+    def _wait_for_stats(
+        self, done: Callable[[Mapping[str, Any]], bool], timeout_s: float = 3.0
+    ) -> tuple[bool, Mapping[str, Any] | None]:
+        """Poll the service statistics until ``done(stats)`` or the timeout."""
+        deadline = time.perf_counter() + timeout_s
+        stats: Mapping[str, Any] | None = None
+        while True:
+            reply = self.service.fetch_stats(timeout_s=1.0)
+            if reply.ok and isinstance(reply.data, Mapping):
+                stats = reply.data
+                self._service_stats = stats
+                if done(stats):
+                    return True, stats
+            if time.perf_counter() > deadline:
+                return False, stats
+            time.sleep(0.3)
 
     def _load_model(self) -> None:
         try:
@@ -238,30 +258,45 @@ class Dashboard:
             return
         self.model_status.content = f"asking the service to load `{path.name}`..."
         reply = self.service.request_model_load(path)
-        self.model_status.content = (
-            f"loaded `{path.name}`" if reply.ok else f"**load failed:** {reply.text}"
-        )
+        if not reply.ok:
+            self.model_status.content = f"**load failed:** {reply.text}"
+            return
+        loaded, stats = self._wait_for_stats(lambda st: stats_model_path(st) == path)
+        if loaded:
+            self.model_status.content = f"the service now runs `{path.name}`"
+        else:
+            running = stats_model_path(stats)
+            name = running.name if running is not None else "an unknown model"
+            self.model_status.content = (
+                f"**not loaded:** the service still runs `{name}` (it does not load models "
+                "at run time yet; restart it with --model)"
+            )
         self._model_refresh.trigger()
 
     def _record(self, start: bool) -> None:
         if not start:
             reply = self.service.set_recording(False)
-            self.record_status.content = "stopped" if reply.ok else f"**stop failed:** {reply.text}"
-            return
-        try:
-            name = recording_name(self.record_name.value)
-        except TeleopForceError as exc:
-            self.record_status.content = f"**{exc}**"
-            return
-        folder = self.recordings.folders[0]
-        target = folder / name
-        if not self.recordings.contains(target) or target.exists():
-            self.record_status.content = f"**{name} exists or is not allowed**"
-            return
-        reply = self.service.set_recording(True, target)
-        self.record_status.content = (
-            f"recording into `recordings/{name}`" if reply.ok else f"**start failed:** {reply.text}"
-        )
+        else:
+            try:
+                name = recording_name(self.record_name.value)
+            except TeleopForceError as exc:
+                self.record_status.content = f"**{exc}**"
+                return
+            target = self.recordings.folders[0] / name
+            if not self.recordings.contains(target) or target.exists():
+                self.record_status.content = f"**{name} exists or is not allowed**"
+                return
+            reply = self.service.set_recording(True, target)
+        if reply.ok:
+            _, stats = self._wait_for_stats(lambda st: False, timeout_s=0.0)
+            self.record_status.content = f"service: {stats_recording(stats)}"
+        elif reply.text.startswith("no reply") and self._service_stats is not None:
+            self.record_status.content = (
+                "**the service does not take recording commands**: it records only when "
+                f"started with --record PATH (now: {stats_recording(self._service_stats)})"
+            )
+        else:
+            self.record_status.content = f"**{reply.text}**"
 
     def _replay(self, play: bool) -> None:
         if not play:
@@ -278,11 +313,20 @@ class Dashboard:
 
     def _set_adaptation(self) -> None:
         enabled = bool(self.adaptation.value)
-        reply = self.service.set_adaptation(enabled)
         word = "on" if enabled else "off"
-        self.adaptation_status.content = (
-            f"adaptation {word}" if reply.ok else f"**adaptation {word} failed:** {reply.text}"
-        )
+        reply = self.service.set_adaptation(enabled)
+        if not reply.ok:
+            self.adaptation_status.content = f"**adaptation {word} failed:** {reply.text}"
+            return
+        confirmed, stats = self._wait_for_stats(lambda st: stats_adaptation(st)[0] is enabled)
+        if confirmed:
+            self.adaptation_status.content = f"adaptation {word} (confirmed by the service)"
+        else:
+            state, note = stats_adaptation(stats)
+            now = "unknown" if state is None else ("on" if state else "off")
+            self.adaptation_status.content = f"**the service reports adaptation {now}**" + (
+                f": {note}" if note else ""
+            )
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -333,12 +377,15 @@ class Dashboard:
                 model = unwrap_model(reply.data) if reply.ok else None
                 if model is not None:
                     self._set_model(model)
-                elif self._model_key == "":
-                    note = reply.text if not reply.ok else "reply is not a model"
-                    self._coverage = CoverageInfo("none", None, None, f"model: {note}")
+                elif self._model_key == "":  # say why there is no coverage to show
+                    note = reply.text if not reply.ok else "the reply is not a model"
+                    message = f"model: {note}"
+                    if message != self._coverage.message:
+                        self._coverage = CoverageInfo("none", None, None, message)
+                        self._background = render_background(self._coverage)
 
     def _set_model(self, model: Mapping[str, Any]) -> None:
-        key = json.dumps(model.get("friction"), sort_keys=True, default=str)
+        key = _picture_key(model)
         if key == self._model_key:
             return
         coverage = coverage_from_model(model)
@@ -416,37 +463,51 @@ class Dashboard:
             status_age_s=tel.status_age_s(),
             joint_state_age_s=tel.joint_state_age_s(),
         )
-        content = banner_html(assess(inputs, self.config.stale_after_s))
+        verdict = assess(inputs, self.config.stale_after_s)
+        content = banner_html(verdict)
         if content != self._banner:
             self._banner = content
             self.banner.content = content
+            label = f"{self.config.device}: {verdict.short}"
+            if label != self._panel_label:  # the panel title stays visible when scrolled
+                self._panel_label = label
+                self.server.gui.set_panel_label(label)
+            self.scene.set_verdict(verdict.short, verdict.trustworthy)
 
     def _render_fig4(self) -> None:
         background = self._background
         if background is None:
             return
+        frame = self._fig4_frame(background)
+        if frame is None:  # no trajectory: show the bare figure once per background
+            if self._fig4_shown is background:
+                return
+            frame = background.image
+        self._fig4_shown = background
+        self.fig4.image = frame
+
+    def _fig4_frame(self, background: Background) -> np.ndarray | None:
         tel = self.telemetry
         t_end = newest_time(tel)
         if t_end is None:
-            return
+            return None
         t_start = t_end - self.config.trail_s
         n = max(20, int(self.config.trail_s * 100))
         js = tel.joint_state.window(t_start)
         if len(js) == 0:
-            return
+            return None
         t, qd = bin_mean(js.t_s, js.values[:, JS_QD], t_start, t_end + 1e-9, n)
         _, flags = bin_mean(*_estimate_flags(tel, t_start), t_start, t_end + 1e-9, n)
         keep = np.all(np.isfinite(qd), axis=1)
         if not np.any(keep):
-            return
+            return None
         trained_plane = np.where(np.isnan(flags[:, 1]), np.nan, np.fmin(flags[:, 1], flags[:, 2]))
         age = (t_end - t) / self.config.trail_s
-        frame = compose_frame(
+        return compose_frame(
             background, qd[keep], trained_plane[keep] >= 0.5, age[keep],
             known=np.isfinite(trained_plane[keep]),
             trained_line=flags[keep, 0] >= 0.5,
         )  # fmt: skip
-        self.fig4.image = frame
 
     def _stats_markdown(self) -> str:
         snaps = self.telemetry.snapshots()
@@ -461,13 +522,38 @@ class Dashboard:
                      f"replay: {self.replay.status()}")  # fmt: skip
         lines.append("")
         lines.append(f"**{self._service_note}**")
+        stats = self._service_stats
+        if stats:
+            running = stats_model_path(stats)
+            state, _ = stats_adaptation(stats)
+            lines.append("")
+            lines.append(
+                f"Service model: `{running.name if running else '?'}`; adaptation: "
+                f"{'?' if state is None else ('on' if state else 'off')}; "
+                f"{stats_recording(stats)}"
+            )
         if self._service_stats:
             flat = _flatten(self._service_stats)
             lines.append("")
             lines.append("| service stat | value |")
             lines.append("|---|---:|")
-            lines += [f"| {k} | {v} |" for k, v in list(flat.items())[:24]]
+            lines += [f"| {k} | {v} |" for k, v in list(flat.items())[:40]]
         return "\n".join(lines)
+
+
+def _picture_key(model: Mapping[str, Any]) -> str:
+    """Return what Fig. 4's background depends on: coverage and active sets, not coefficients.
+
+    Online adaptation changes coefficients all the time; redrawing only when this key changes
+    keeps matplotlib off the hot path.
+    """
+    friction = model.get("friction")
+    if not isinstance(friction, Mapping):
+        return json.dumps(None)
+    joints = friction.get("joints") or []
+    active = [j.get("active") for j in joints if isinstance(j, Mapping)]
+    picture = {"kind": friction.get("kind"), "coverage": friction.get("coverage"), "active": active}
+    return json.dumps(picture, sort_keys=True, default=str)
 
 
 def _estimate_flags(tel: Telemetry, t_start: float) -> tuple[np.ndarray, np.ndarray]:
@@ -574,6 +660,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         dashboard = Dashboard(config, session)
         dashboard.start()
+        if config.host not in ("127.0.0.1", "localhost", "::1"):
+            print(
+                f"dashboard: WARNING: listening on {config.host}: anyone who can reach this "
+                "port can load models, record and replay (no authentication)",
+                file=sys.stderr,
+            )
         print(
             f"dashboard: http://{config.host}:{dashboard.server.get_port()} "
             f"(device {config.device}, master {config.master_device})",

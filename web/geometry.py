@@ -52,11 +52,11 @@ def quat_z_to(direction: np.ndarray) -> np.ndarray:
     if not np.isfinite(norm) or norm < 1e-12:
         return np.array([1.0, 0.0, 0.0, 0.0])
     v = v / norm
-    w = 1.0 + v[2]
-    if w < 1e-9:  # opposite of +z: half a turn about x
+    q = np.array([1.0 + v[2], -v[1], v[0], 0.0])  # (1 + z.v, z x v), then normalised
+    size = float(np.linalg.norm(q))
+    if size < 1e-12:  # exactly opposite to +z: half a turn about x
         return np.array([0.0, 1.0, 0.0, 0.0])
-    q = np.array([w, -v[1], v[0], 0.0])  # (1 + z.v, z x v)
-    return q / np.linalg.norm(q)
+    return q / size
 
 
 def rotate_by_quat(quat: np.ndarray, vector: np.ndarray) -> np.ndarray:
@@ -65,6 +65,49 @@ def rotate_by_quat(quat: np.ndarray, vector: np.ndarray) -> np.ndarray:
     u = np.array([x, y, z])
     v = np.asarray(vector, dtype=float)
     return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+def quat_about(axis: np.ndarray | tuple[float, float, float], angle: float) -> np.ndarray:
+    """Return the unit quaternion ``(w, x, y, z)`` of a rotation by ``angle`` about ``axis``."""
+    u = np.asarray(axis, dtype=float)
+    u = u / np.linalg.norm(u)
+    half = 0.5 * float(angle)
+    return np.concatenate(([np.cos(half)], np.sin(half) * u))
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the Hamilton product ``a * b`` (apply ``b`` first, then ``a``)."""
+    w1, x1, y1, z1 = np.asarray(a, dtype=float)
+    w2, x2, y2, z2 = np.asarray(b, dtype=float)
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def arm_frame_quats(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local rotations of the three frames of a drawn arm, in the Omni base frame.
+
+    The arm is a kinematic tree whose links lie along their frame's +z axis:
+
+    * ``yaw``: about base +y by ``-q1`` (the arm points along +z at ``q1 = 0``, toward -x for
+      ``q1 > 0``);
+    * ``shoulder`` (child of yaw): about +x by ``-q2`` (the upper arm rises with ``q2``);
+    * ``elbow`` (child of shoulder, ``l1`` along its +z): about +x by ``pi/2 - q3 + q2``, so
+      the forearm hangs straight down at ``q3 = 0`` whatever ``q2`` (q3 is absolute).
+
+    Three rotations per arm and frame is all a pose update has to send.
+    """
+    q1, q2, q3 = (float(v) for v in np.asarray(q, dtype=float)[:3])
+    return (
+        quat_about((0.0, 1.0, 0.0), -q1),
+        quat_about((1.0, 0.0, 0.0), -q2),
+        quat_about((1.0, 0.0, 0.0), np.pi / 2 - q3 + q2),
+    )
 
 
 def link_pose(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -96,10 +139,13 @@ def force_arrow(
 
 __all__ = [
     "R_WORLD_BASE",
+    "arm_frame_quats",
     "base_to_world",
     "force_arrow",
     "link_pose",
     "omni_joint_points",
+    "quat_about",
+    "quat_mul",
     "quat_z_to",
     "rotate_by_quat",
 ]

@@ -21,6 +21,8 @@ from web.telemetry import FE_F, FE_TAU_EXT, FE_TAU_MODEL, FE_TAU_MOTOR, N_JOINTS
 
 AXIS_RGB: Final = ("#d93025", "#1e8e3e", "#1a73e8")
 PLOT_HEIGHT_PX: Final = 200
+#: Leading force-estimate columns the charts use (force, residual, coverage, torques).
+FE_PLOTTED: Final = max(FE_F.stop, FE_TAU_EXT.stop, FE_TAU_MOTOR.stop, FE_TAU_MODEL.stop)
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,7 @@ def plot_frames(telemetry: Telemetry, window_s: float, n_bins: int) -> PlotFrame
     t_start = t_end - window_s
     end = t_end + 1e-9
     est = telemetry.estimate.window(t_start)
-    x, fe = bin_mean(est.t_s, est.values, t_start, end, n_bins)
+    x, fe = bin_mean(est.t_s, est.values[:, :FE_PLOTTED], t_start, end, n_bins)
     cf = telemetry.contact.window(t_start)
     _, truth = bin_mean(cf.t_s, cf.values, t_start, end, n_bins)
     has_data = np.any(np.isfinite(fe), axis=1) | np.any(np.isfinite(truth), axis=1)

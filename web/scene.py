@@ -1,31 +1,40 @@
 """The 3D scene: slave Omni, translucent master ghost, tissue plane and force arrows.
 
 Everything is computed in the Omni base frame (y up, z toward the user) and mapped to viser's
-z-up world with :func:`web.geometry.base_to_world`; the camera starts where the user sits.
+z-up world with :func:`web.geometry.base_to_world`; the camera starts in front of the arm, to
+the user's right, so motion toward the user and up/down (the base y-z plane) reads well.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import viser
 
-from web.geometry import R_WORLD_BASE, base_to_world, force_arrow, link_pose, omni_joint_points
+from teleop_force.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M
+from web.geometry import (
+    R_WORLD_BASE,
+    arm_frame_quats,
+    base_to_world,
+    force_arrow,
+    omni_joint_points,
+)
 
 LINK_RADIUS_M: Final = 0.009
 JOINT_RADIUS_M: Final = 0.013
 TIP_RADIUS_M: Final = 0.011
 #: Arrow length per newton of force.
 METRES_PER_NEWTON: Final = 0.04
-TISSUE_SIZE_M: Final = (0.36, 0.30)
+TISSUE_SIZE_M: Final = (0.32, 0.22)
 #: Centre of the tissue plane in the base frame (x, z): in front of the arm, toward the user.
-TISSUE_CENTRE_XZ_M: Final = (0.0, 0.14)
+TISSUE_CENTRE_XZ_M: Final = (0.0, 0.17)
 SLAVE_RGB: Final = (150, 156, 168)
 MASTER_RGB: Final = (66, 133, 244)
 EST_FORCE_RGB: Final = (242, 153, 0)
 TRUE_FORCE_RGB: Final = (30, 142, 62)
+UNTRUSTED_FORCE_RGB: Final = (217, 48, 37)
 TISSUE_RGB: Final = (234, 140, 150)
 #: Quaternion of :data:`R_WORLD_BASE` (+90 degrees about x).
 BASE_FRAME_WXYZ: Final = (np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0)
@@ -33,49 +42,49 @@ BASE_FRAME_WXYZ: Final = (np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0)
 
 @dataclass
 class _Arm:
-    """Scene handles of one drawn arm."""
+    """Scene handles of one drawn arm: a root in the base frame and three joint frames."""
 
-    links: tuple[viser.CylinderHandle, viser.CylinderHandle]
-    joints: tuple[viser.IcosphereHandle, ...]
+    root: viser.FrameHandle
+    frames: tuple[viser.FrameHandle, viser.FrameHandle, viser.FrameHandle]
     last_q: np.ndarray | None = None
 
 
 def _add_arm(
     scene: viser.SceneApi, name: str, rgb: tuple[int, int, int], opacity: float | None
 ) -> _Arm:
-    q0 = np.array([0.0, 0.6, 0.3])
-    points = base_to_world(omni_joint_points(q0))
-    links = []
-    for k, label in enumerate(("upper_arm", "forearm")):
-        pos, wxyz, length = link_pose(points[k], points[k + 1])
-        links.append(
-            scene.add_cylinder(
-                f"/{name}/{label}", radius=LINK_RADIUS_M, height=length, color=rgb,
-                opacity=opacity, position=pos, wxyz=wxyz, cast_shadow=False,
-                receive_shadow=False,
-            )
-        )  # fmt: skip
-    joints = []
-    for k, (label, radius) in enumerate(
-        (("shoulder", JOINT_RADIUS_M), ("elbow", JOINT_RADIUS_M), ("tip", TIP_RADIUS_M))
-    ):
-        joints.append(
-            scene.add_icosphere(
-                f"/{name}/{label}", radius=radius, color=rgb, opacity=opacity,
-                position=points[k], subdivisions=2, cast_shadow=False, receive_shadow=False,
-            )
-        )  # fmt: skip
-    return _Arm((links[0], links[1]), tuple(joints))
+    """Add an arm as a kinematic tree (root -> yaw -> shoulder -> elbow), links along +z."""
+    flat: dict[str, Any] = {"opacity": opacity, "cast_shadow": False, "receive_shadow": False}
+    root = scene.add_frame(f"/{name}", show_axes=False, wxyz=BASE_FRAME_WXYZ)
+    yaw = scene.add_frame(f"/{name}/yaw", show_axes=False)
+    shoulder = scene.add_frame(f"/{name}/yaw/shoulder", show_axes=False)
+    elbow = scene.add_frame(
+        f"/{name}/yaw/shoulder/elbow", show_axes=False, position=(0.0, 0.0, UPPER_ARM_LENGTH_M)
+    )
+    base = f"/{name}/yaw/shoulder"
+    scene.add_icosphere(f"{base}/joint", radius=JOINT_RADIUS_M, color=rgb, subdivisions=2, **flat)
+    scene.add_cylinder(
+        f"{base}/upper_arm", radius=LINK_RADIUS_M, height=UPPER_ARM_LENGTH_M, color=rgb,
+        position=(0.0, 0.0, UPPER_ARM_LENGTH_M / 2), **flat,
+    )  # fmt: skip
+    scene.add_icosphere(
+        f"{base}/elbow/joint", radius=JOINT_RADIUS_M, color=rgb, subdivisions=2, **flat
+    )
+    scene.add_cylinder(
+        f"{base}/elbow/forearm", radius=LINK_RADIUS_M, height=FOREARM_LENGTH_M, color=rgb,
+        position=(0.0, 0.0, FOREARM_LENGTH_M / 2), **flat,
+    )  # fmt: skip
+    scene.add_icosphere(
+        f"{base}/elbow/tip", radius=TIP_RADIUS_M, color=rgb, subdivisions=2,
+        position=(0.0, 0.0, FOREARM_LENGTH_M), **flat,
+    )  # fmt: skip
+    arm = _Arm(root, (yaw, shoulder, elbow))
+    _pose_arm(arm, np.array([0.0, 0.6, 0.3]))
+    return arm
 
 
 def _pose_arm(arm: _Arm, q: np.ndarray) -> None:
-    points = base_to_world(omni_joint_points(q))
-    for k, link in enumerate(arm.links):
-        pos, wxyz, _ = link_pose(points[k], points[k + 1])
-        link.position = pos
-        link.wxyz = wxyz
-    for k, joint in enumerate(arm.joints):
-        joint.position = points[k]
+    for frame, wxyz in zip(arm.frames, arm_frame_quats(q), strict=True):
+        frame.wxyz = wxyz
     arm.last_q = np.asarray(q, dtype=float).copy()
 
 
@@ -83,7 +92,7 @@ class OmniScene:
     """Scene handles of the dashboard and their per-frame update."""
 
     def __init__(self, server: viser.ViserServer, tissue_y_m: float) -> None:
-        """Build the static scene (base, tissue) and the two arms, camera at the user."""
+        """Build the static scene (base, tissue), the two arms and the initial camera."""
         scene = server.scene
         scene.set_up_direction("+z")
         # No shadow pass: the scene stays cheap to draw (software WebGL, laptops).
@@ -108,8 +117,7 @@ class OmniScene:
         self.tissue_y_m = tissue_y_m
         self.slave = _add_arm(scene, "slave", SLAVE_RGB, None)
         self.master = _add_arm(scene, "master_ghost", MASTER_RGB, 0.3)
-        for handle in (*self.master.links, *self.master.joints):
-            handle.visible = False
+        self.master.root.visible = False
         arrow0 = np.zeros((1, 2, 3))
         arrow0[0, 1, 2] = 0.01
         self.est_arrow = scene.add_arrows(
@@ -120,11 +128,25 @@ class OmniScene:
             "/force/true", arrow0, TRUE_FORCE_RGB, shaft_radius=0.0025, head_radius=0.007,
             head_length=0.015, visible=False,
         )  # fmt: skip
+        self.verdict_label = scene.add_label(
+            "/verdict", "waiting", position=base_to_world(np.array([0.0, 0.09, 0.0])),
+            anchor="bottom-center", font_screen_scale=1.4,
+        )  # fmt: skip
+        self._verdict: tuple[str, bool] | None = None
         self.show_true_force = True
         self.show_ghost = True
-        server.initial_camera.position = (0.32, -0.62, 0.24)
-        server.initial_camera.look_at = (0.0, -0.1, -0.05)
+        server.initial_camera.position = (0.5, -0.42, 0.2)
+        server.initial_camera.look_at = (0.0, -0.1, -0.04)
         server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def set_verdict(self, text: str, trusted: bool) -> None:
+        """Show the trust verdict in the 3D view; the estimated force turns red if untrusted."""
+        if self._verdict == (text, trusted):
+            return
+        self._verdict = (text, trusted)
+        self.verdict_label.text = text if trusted else f"DO NOT TRUST: {text}"
+        rgb = EST_FORCE_RGB if trusted else UNTRUSTED_FORCE_RGB
+        self.est_arrow.colors = np.array(rgb, dtype=np.uint8)
 
     @staticmethod
     def _tissue_position(tissue_y_m: float) -> np.ndarray:
@@ -148,9 +170,8 @@ class OmniScene:
         if q_slave is not None and _moved(self.slave.last_q, q_slave):
             _pose_arm(self.slave, q_slave)
         ghost = self.show_ghost and q_master is not None
-        for handle in (*self.master.links, *self.master.joints):
-            if handle.visible != ghost:
-                handle.visible = ghost
+        if self.master.root.visible != ghost:
+            self.master.root.visible = ghost
         if ghost and q_master is not None and _moved(self.master.last_q, q_master):
             _pose_arm(self.master, q_master)
         tip = None if self.slave.last_q is None else omni_joint_points(self.slave.last_q)[2]

@@ -68,6 +68,7 @@ class Verdict:
 
     trust: Trust
     headline: str
+    short: str
     reasons: tuple[str, ...] = ()
     safety_line: str | None = None
     safety_alert: bool = False
@@ -108,15 +109,17 @@ def assess(inputs: TrustInputs, stale_after_s: float = STALE_AFTER_S) -> Verdict
         notes.append("coverage weight " + " ".join(f"{w:.2f}" for w in inputs.coverage_weight))
 
     if math.isinf(inputs.estimate_age_s):
-        trust, headline = Trust.WAITING, "WAITING FOR FORCE ESTIMATE"
+        trust, headline, short = Trust.WAITING, "WAITING FOR FORCE ESTIMATE", "waiting"
     elif not fresh:
-        trust, headline = Trust.UNTRUSTED, "ESTIMATE STALE - DO NOT TRUST"
+        trust, headline, short = Trust.UNTRUSTED, "ESTIMATE STALE - DO NOT TRUST", "STALE"
     elif inputs.untrained_joints:
-        trust, headline = Trust.UNTRUSTED, "UNTRAINED GROUND - ESTIMATE NOT TRUSTWORTHY"
+        trust = Trust.UNTRUSTED
+        headline, short = "UNTRAINED GROUND - ESTIMATE NOT TRUSTWORTHY", "UNTRAINED GROUND"
     elif inputs.force_nan:
-        trust, headline = Trust.UNTRUSTED, "NO FORCE ESTIMATE (SINGULAR JACOBIAN)"
+        trust = Trust.UNTRUSTED
+        headline, short = "NO FORCE ESTIMATE (SINGULAR JACOBIAN)", "SINGULAR"
     else:
-        trust, headline = Trust.TRUSTED, "ESTIMATE TRUSTWORTHY"
+        trust, headline, short = Trust.TRUSTED, "ESTIMATE TRUSTWORTHY", "estimate OK"
 
     safety_line, safety_alert = None, False
     if inputs.status_state is not None:
@@ -127,7 +130,7 @@ def assess(inputs: TrustInputs, stale_after_s: float = STALE_AFTER_S) -> Verdict
         if inputs.status_age_s > 2.0:
             safety_line += f" (status {inputs.status_age_s:.0f} s old)"
         safety_alert = inputs.status_state in (SafetyState.HOLDING, SafetyState.STOPPED)
-    return Verdict(trust, headline, tuple(reasons), safety_line, safety_alert, tuple(notes))
+    return Verdict(trust, headline, short, tuple(reasons), safety_line, safety_alert, tuple(notes))
 
 
 _COLOURS: Final = {

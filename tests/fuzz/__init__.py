@@ -1,0 +1,1 @@
+"""Fuzzing of every decoder and reader (hypothesis); ``python -m tests.fuzz.report`` counts."""

@@ -1,0 +1,198 @@
+"""Fuzzed payloads over real Zenoh: the service and the slave count and drop them, and go on.
+
+The service (recording, so every recorded key is decoded too) runs on a loopback session; the
+test publishes mutated messages of every type on its keys from a second session, predicts
+which ones are malformed, and checks the service's counters and its recording against that.
+``TELEOP_FUZZ_EXAMPLES=N`` sets the number of payloads per key (default 400).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from master_slave.slave import SetpointInbox
+from teleop_force import keys
+from teleop_force import messages as m
+from teleop_force.dynamic_model import DynamicModel
+from teleop_force.errors import MessageError
+from teleop_force.mcap_session import SessionReader
+from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
+from teleop_force.service_transport import declare_data_publisher, query_json
+from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+
+from .strategies import mutate_bytes
+from .targets import count, fuzzed_payloads, message_examples
+
+DEVICE = "fuzz-slave"
+N_PAYLOADS = int(os.environ.get("TELEOP_FUZZ_EXAMPLES") or 400)
+
+
+def own_joint_state_is_valid(payload: bytes) -> bool:
+    try:
+        js = m.JointState.decode(payload)
+    except MessageError:
+        return False
+    values = np.abs(np.array(js.q_rad + js.qd_rad_s + js.effort_nm))
+    return js.n_joints == 3 and bool(np.all(values <= MAX_ABS_JOINT_VALUE))
+
+
+def recorded_outcomes(payloads: list[bytes]) -> tuple[int, int]:
+    """(written, malformed) for one recorded key: the first good message fixes its type."""
+    kind = None
+    written = malformed = 0
+    for payload in payloads:
+        try:
+            message = m.decode(payload)
+        except MessageError:
+            malformed += 1
+            continue
+        if kind is None:
+            kind = type(message)
+        if type(message) is not kind:
+            malformed += 1
+        else:
+            written += 1
+    return written, malformed
+
+
+def wait_until(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating():
+    own = keys.measured_js(DEVICE)
+    others = [
+        keys.setpoint_js("fuzz-master"),
+        keys.measured_cf(DEVICE),
+        keys.status(DEVICE),
+        keys.measured_js("fuzz-other"),
+    ]
+    payloads = {key: fuzzed_payloads(N_PAYLOADS, seed=i) for i, key in enumerate([own, *others])}
+    expected_valid = sum(map(own_joint_state_is_valid, payloads[own]))
+    expected_recorded = {key: recorded_outcomes(payloads[key]) for key in others}
+    endpoint = listen_endpoint(free_tcp_port())
+    folder = Path(tempfile.mkdtemp(prefix="fuzz-service-"))
+    record = folder / "fuzz.mcap"
+    service_session = open_session(
+        ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False)
+    )
+    session = open_session(
+        ZenohOptions(mode="peer", connect=(endpoint,), listen=(), multicast_scouting=False)
+    )
+    model = DynamicModel.load(DEFAULT_MODEL_PATH)
+    service = ForceService(
+        service_session, model, ServiceConfig(device=DEVICE, record_path=record)
+    ).start()
+    publishers = {key: declare_data_publisher(session, key) for key in payloads}
+    got: list[m.ForceEstimate] = []
+    sub = session.declare_subscriber(
+        keys.estimated_cf(DEVICE),
+        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
+    )
+    try:
+        for pub in publishers.values():
+            wait_until(lambda p=pub: p.matching_status.matching, 20.0, "the service to subscribe")
+        time.sleep(0.2)
+        for k in range(N_PAYLOADS):
+            for key, pub in publishers.items():
+                pub.put(payloads[key][k])
+
+        def stats():
+            return query_json(session, keys.service_stats(DEVICE), 5.0)
+
+        def settled():
+            st_ = stats()
+            own_seen = st_["joint_states"]["received"] + st_["malformed"]["by_key"].get(own, 0)
+            return own_seen == N_PAYLOADS and st_["recording"]["backlog"] == 0
+
+        wait_until(settled, 60.0, "the service to process every payload")
+        time.sleep(0.3)
+        after_fuzz = stats()
+        # It still estimates on good joint states (a new stream).
+        n_before = len(got)
+        for k in range(200):
+            q = (0.1, 0.8 + 1e-3 * k, 0.3)
+            good = m.JointState(k, 1_800_000_000_000_000_000 + k * 1_000_000, q, (0.0,) * 3,
+                                (0.0, 0.1, 0.05))  # fmt: skip
+            publishers[own].put(good.encode())
+        wait_until(lambda: len(got) >= n_before + 200, 30.0, "estimates after the fuzzing")
+    finally:
+        sub.undeclare()
+        for pub in publishers.values():
+            pub.undeclare()
+        service.close()
+        session.close()
+        service_session.close()
+    malformed = after_fuzz["malformed"]["by_key"]
+    assert malformed.get(own, 0) == N_PAYLOADS - expected_valid
+    assert after_fuzz["joint_states"]["received"] == expected_valid
+    js, est = after_fuzz["joint_states"], after_fuzz["estimates"]
+    assert est["published"] + est["errors"] + js["duplicates"] == js["received"]
+    for key, (_written, bad) in expected_recorded.items():
+        assert malformed.get(key, 0) == bad, key
+    counts = SessionReader(record).message_counts
+    for key, (written, _bad) in expected_recorded.items():
+        assert counts.get(key, 0) == written, key
+    assert counts[own] == expected_valid + 200
+    count("service: fuzzed payloads over Zenoh", "malformed, counted", sum(
+        b for _, b in expected_recorded.values()) + N_PAYLOADS - expected_valid)  # fmt: skip
+    count("service: fuzzed payloads over Zenoh", "valid", sum(
+        w for w, _ in expected_recorded.values()) + expected_valid)  # fmt: skip
+
+
+class FakeSample:
+    """What the slave's setpoint callback reads from a Zenoh sample."""
+
+    class _Payload:
+        def __init__(self, data: bytes) -> None:
+            self.data = data
+
+        def to_bytes(self) -> bytes:
+            return self.data
+
+    def __init__(self, data: bytes) -> None:
+        self.payload = self._Payload(data)
+
+
+_SETPOINT_SEEDS = [x.encode() for x in message_examples()]
+
+
+@settings(max_examples=N_PAYLOADS, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.binary(max_size=80), st.sampled_from(_SETPOINT_SEEDS).flatmap(mutate_bytes),
+            st.sampled_from(_SETPOINT_SEEDS),
+        ),
+        min_size=1,
+        max_size=20,
+    )
+)  # fmt: skip
+def test_slave_counts_and_drops_fuzzed_setpoints(batch):
+    inbox = SetpointInbox()
+    valid = 0
+    for payload in batch:
+        try:
+            ok = m.JointSetpoint.decode(payload).n_joints == 3
+        except MessageError:
+            ok = False
+        valid += ok
+        inbox.on_sample(FakeSample(payload))  # never raises
+    stats = inbox.stats()
+    assert stats["valid"] == valid
+    assert stats["malformed"] == len(batch) - valid
+    q, _arrival, n = inbox.latest()
+    assert n == valid and (q is None) == (valid == 0)
+    count("slave: fuzzed setpoints (SetpointInbox)", "valid", valid)
+    count("slave: fuzzed setpoints (SetpointInbox)", "malformed, counted", len(batch) - valid)

@@ -1,0 +1,99 @@
+"""Smoke test of ``teleop-force bench --quick --json``: one JSON object, keys and types.
+
+Performance is reported, never asserted: no figure is compared with a goal here.
+"""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from teleop_force.bench_util import peak_rss_mb, percentiles
+
+NUMBERS = (
+    "estimate_step_p50_us",
+    "estimate_step_p99_us",
+    "rnea_us",
+    "estimate_step_vs_rnea",
+    "identify_batch_x_realtime",
+    "identify_adaptive_x_realtime",
+    "identify_pipeline_x_realtime",
+    "identify_filter_signals_x_realtime",
+    "replay_x_realtime",
+    "service_peak_rss_mb",
+)
+MESSAGING = (
+    "latency_master_to_slave_p50_ms",
+    "latency_master_to_slave_p99_ms",
+    "latency_slave_to_estimate_p50_ms",
+    "latency_slave_to_estimate_p99_ms",
+    "latency_end_to_end_p99_ms",
+    "messages_lost",
+)
+SCALING = (
+    "estimate_step_p50_us_by_wavelets",
+    "estimate_step_p99_us_by_wavelets",
+    "replay_x_realtime_by_wavelets",
+    "replay_peak_rss_mb_by_wavelets",
+    "replay_x_realtime_by_length_s",
+    "replay_peak_rss_mb_by_length_s",
+)
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+@pytest.fixture(scope="module")
+def quick_run() -> dict:
+    proc = subprocess.run(
+        [sys.executable, "-m", "teleop_force.cli", "bench", "--quick", "--json", "--no-messaging"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert len(lines) == 1, "stdout must hold exactly one JSON object"
+    return json.loads(lines[0])
+
+
+def test_quick_bench_prints_the_figures(quick_run: dict) -> None:
+    result = quick_run
+    assert result["quick"] is True
+    for key in NUMBERS:
+        assert _number(result[key]), key
+    for key in MESSAGING:  # skipped with --no-messaging, but present
+        assert key in result and result[key] is None, key
+    for key in SCALING:
+        table = result[key]
+        assert isinstance(table, dict) and table, key
+        assert all(isinstance(k, str) and _number(v) for k, v in table.items()), key
+    assert set(result["estimate_step_p50_us_by_wavelets"]) == {"100", "300", "1000"}
+    counts = result["model_wavelets_per_joint"]
+    assert isinstance(counts, list) and len(counts) == 3 and all(isinstance(c, int) for c in counts)
+    assert result["model_found_effects"] == 2
+    assert isinstance(result["load_average_start"], list)
+    for goal in result["goals"].values():
+        assert goal["met"] in (True, False, None)
+
+
+def test_bench_rejects_bad_options() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "teleop_force.cli", "bench", "--messaging-duration", "-1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert "--messaging-duration" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_helpers() -> None:
+    assert percentiles([1.0, 2.0, 3.0], (50,)) == [2.0]
+    peak = peak_rss_mb()
+    assert peak is not None and peak > 1.0
