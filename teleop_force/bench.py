@@ -61,8 +61,8 @@ class BenchOptions:
     Attributes:
         quick: Short run (smoke test): small sizes everywhere.
         identify_samples: Samples of the identification figures (240,000 = 4 min at 1 kHz).
-        identify_simulated_s: Seconds simulated per recording before repetition (two 22 s
-            periods of the multisine: the second one is repeated).
+        identify_simulated_s: Seconds simulated per recording at most: a longer recording is
+            made of two 22 s periods of the multisine, the second one repeated.
         estimate_samples: Timed estimation steps of the main figure (half per scaling model).
         messaging: Run the demo for the messaging figures.
         messaging_duration_s: How long the demo runs once everything is up.
@@ -141,6 +141,8 @@ def _goals(result: dict[str, Any]) -> dict[str, Any]:
 def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     """Measure every figure (see the module docstring); return them as one JSON-ready dict."""
     from teleop_force.bench_data import (
+        MULTISINE_PERIOD_S,
+        SAMPLE_INTERVAL_S,
         identification_recordings,
         palpation_arrays,
         wavelet_counts,
@@ -166,10 +168,14 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
         with stopwatch() as total:
             # -- 2. identification (its model is the benchmark model of the other figures)
             per_recording = options.identify_samples // 2
-            log(f"simulating 2 x {options.identify_simulated_s:g} s -> 2 x {per_recording} samples")
-            recordings = identification_recordings(
-                options.identify_simulated_s, per_recording, options.seed
+            needed_s = per_recording * SAMPLE_INTERVAL_S
+            simulated_s = (
+                needed_s
+                if needed_s <= options.identify_simulated_s
+                else max(options.identify_simulated_s, 2 * MULTISINE_PERIOD_S)
             )
+            log(f"simulating 2 x {simulated_s:g} s -> 2 x {per_recording} samples")
+            recordings = identification_recordings(simulated_s, per_recording, options.seed)
             ident = time_identification(recordings, log)
             result.update(ident.figures())
             assert ident.model is not None

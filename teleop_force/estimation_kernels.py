@@ -110,6 +110,13 @@ class CoverageLookup:
             bx, by = math.floor(cx), math.floor(cy)
             fx, fy = cx - bx, cy - by
             nx, ny = shape
+            if 0 <= bx and bx + 1 < nx and 0 <= by and by + 1 < ny:  # inside: four corners
+                row = bx * ny + by
+                gx = 1.0 - fx
+                total = (1.0 - fy) * (gx * values[row] + fx * values[row + ny]) + fy * (
+                    gx * values[row + 1] + fx * values[row + ny + 1]
+                )
+                return total if total > 0.0 else 0.0
             total = 0.0
             y_in, y1_in = 0 <= by < ny, 0 <= by + 1 < ny
             for i, wx in ((bx, 1.0 - fx), (bx + 1, fx)):

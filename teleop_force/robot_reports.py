@@ -102,9 +102,10 @@ def mtm_study(
         from teleop_force.residual import ResidualOptions, trace_residual
 
         start = time.perf_counter()
-        traced = trace_residual([train.recording], description, ResidualOptions())
+        options = ResidualOptions()
+        traced = trace_residual([train.recording], description, options)
         result = evaluate_model(traced.model, [test.recording])
-        rows["coupled-cv + effects"] = {
+        rows[f"{options.friction} + found effects"] = {
             "done": True,
             "train": traced.after.tolist(),
             "held_out_before": traced.before.tolist(),

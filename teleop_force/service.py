@@ -71,6 +71,7 @@ from teleop_force.errors import (
     ConfigurationError,
     DataError,
     MessageError,
+    ModelFileError,
     TeleopForceError,
 )
 from teleop_force.estimation import ForceEstimator
@@ -117,6 +118,9 @@ DRAIN_TIMEOUT_S: Final = 10.0
 _RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
 #: A joint-state value (rad, rad/s, N m) beyond this is implausible: counted as malformed.
 MAX_ABS_JOINT_VALUE: Final = 1e6
+#: Keys counted apart in ``malformed.by_key`` at most; further keys are counted together.
+MAX_COUNTED_KEYS: Final = 64
+OTHER_KEYS: Final = "(other keys)"
 
 
 @dataclass(frozen=True)
@@ -342,6 +346,8 @@ class ForceService:
             self._count_malformed_locked(key, exc)
 
     def _count_malformed_locked(self, key: str, exc: Exception) -> None:
+        if key not in self.malformed_by_key and len(self.malformed_by_key) >= MAX_COUNTED_KEYS:
+            key = OTHER_KEYS  # a flood on ever new keys must not grow the table without end
         self.malformed_by_key[key] = self.malformed_by_key.get(key, 0) + 1
         self.last_malformed = f"{key}: {exc}"
 
@@ -451,7 +457,7 @@ class ForceService:
         self._t0_ns = None
 
     def _log_once(self, message: str) -> None:
-        if message not in self._logged:
+        if message not in self._logged and len(self._logged) < MAX_COUNTED_KEYS:
             self._logged.add(message)
             log(ROLE, message)
 
@@ -555,13 +561,18 @@ class ForceService:
         only the swap itself holds it. Raises ControlError (or a TeleopForceError of the file).
         """
         path = self.allowed_models.model_file(path_text)
-        model = read_model_file(path)
-        if model.n_joints != self.n_joints:
-            raise ControlError(
-                f"{path}: model has {model.n_joints} joints, the device has {self.n_joints}"
-            )
-        estimator = ForceEstimator(model)
-        _try_estimator(ForceEstimator(model), path)
+        try:
+            model = read_model_file(path)
+            if model.n_joints != self.n_joints:
+                raise ControlError(
+                    f"{path}: model has {model.n_joints} joints, the device has {self.n_joints}"
+                )
+            estimator = ForceEstimator(model)
+            _try_estimator(ForceEstimator(model), path)
+        except TeleopForceError:
+            raise
+        except _INCONSISTENT_MODEL_ERRORS as exc:
+            raise ControlError(f"{path}: inconsistent model: {type(exc).__name__}: {exc}") from None
         note = adaptation_unavailable_reason(estimator) or ""
         with self._lock:
             adapting = self.adapting and not note
@@ -696,7 +707,7 @@ def _plausible(js: m.JointState) -> bool:
 
 
 def _try_estimator(estimator: ForceEstimator, path: Path) -> None:
-    """Run a fresh estimator on a few samples at rest; raise ControlError if it misbehaves."""
+    """Run a fresh estimator on a few samples at rest; raise ModelFileError if it misbehaves."""
     description = estimator.model.description()
     lo = np.asarray(description.q_min_rad, dtype=float)
     hi = np.asarray(description.q_max_rad, dtype=float)
@@ -709,7 +720,7 @@ def _try_estimator(estimator: ForceEstimator, path: Path) -> None:
         np.all(np.isfinite(result.tau_model_filtered_nm))
         and np.all(np.isfinite(result.tau_external_nm))
     ):
-        raise ControlError(f"{path}: the model gives non-finite torques at rest")
+        raise ModelFileError("the model gives non-finite torques at rest", path=path)
 
 
 def _json_preview(value: Any, limit: int = 120) -> str:
@@ -726,10 +737,24 @@ def _remove_quietly(path: Path) -> None:
         return
 
 
+#: What a model file the loader accepted may still raise when its estimator is built or run
+#: (fuzzing found each of these; see docs/reliability.md): reported as a bad model file.
+_INCONSISTENT_MODEL_ERRORS: Final = (ArithmeticError, LookupError, NameError, TypeError, ValueError)
+
+
 def load_model(path: Path | None) -> tuple[DynamicModel, Path]:
-    """Load ``path`` (default: the shipped model); raise ModelFileError."""
+    """Load ``path`` (default: the shipped model) and try it; raise ModelFileError."""
     model_path = Path(path) if path is not None else DEFAULT_MODEL_PATH
-    return DynamicModel.load(model_path), model_path
+    try:
+        model = DynamicModel.load(model_path)
+        _try_estimator(ForceEstimator(model), model_path)
+    except TeleopForceError:
+        raise
+    except _INCONSISTENT_MODEL_ERRORS as exc:
+        raise ModelFileError(
+            f"inconsistent model: {type(exc).__name__}: {exc}", path=model_path
+        ) from None
+    return model, model_path
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,6 +13,11 @@ Estimates without a force (NaN: Jacobian near singular) are counted apart, not a
 estimate is a low-passed quantity (the paper's filter, 8 Hz by default), so part of the error
 against the raw true force is the filter's lag; :meth:`ForceAccuracy.summary` also reports
 the error against the true force passed through the same first-order filter.
+
+Memory and time stay bounded however long the session: the most recent pairs are kept as
+they come; once there are ``2 * FOLD_KEEP`` of them, the oldest half (in seq order) is folded
+into running sums (and the comparison filter's state), and :meth:`ForceAccuracy.summary`
+combines those sums with the recent pairs, so it costs O(FOLD_KEEP), not O(session).
 """
 
 from __future__ import annotations
@@ -32,6 +37,20 @@ from teleop_force.errors import ConfigurationError
 DEFAULT_FILTER_CUTOFF_HZ: Final = 8.0
 #: Unpaired messages kept at most (older ones are forgotten).
 _MAX_PENDING: Final = 20_000
+#: Recent pairs kept as they are (10 s at 1 kHz); older ones are folded into running sums.
+FOLD_KEEP: Final = 10_000
+
+
+class _Folded:
+    """Running sums over the pairs already folded, in seq order."""
+
+    def __init__(self) -> None:
+        self.paired = 0
+        self.contact = 0
+        self.sum_error2 = 0.0
+        self.sum_true2 = 0.0
+        self.sum_lagged2 = 0.0
+        self.state: np.ndarray | None = None  # comparison filter state after the last fold
 
 
 @dataclass(frozen=True)
@@ -68,6 +87,7 @@ class ForceAccuracy:
         self._true: dict[int, tuple[float, float, float]] = {}
         self._estimated: dict[int, tuple[float, float, float]] = {}
         self._pairs: list[tuple[int, float, float, float, float, float, float]] = []
+        self._folded = _Folded()
         self.no_force = 0
         self.latest_true: tuple[float, float, float] | None = None
         self.latest_estimate: tuple[float, float, float] | None = None
@@ -102,9 +122,30 @@ class ForceAccuracy:
         self, seq: int, estimate: tuple[float, float, float], true: tuple[float, float, float]
     ) -> None:
         self._pairs.append((seq, *estimate, *true))
+        if len(self._pairs) >= 2 * FOLD_KEEP:
+            self._fold_locked(len(self._pairs) - FOLD_KEEP)
+
+    def _fold_locked(self, count: int) -> None:
+        """Fold the ``count`` oldest pairs (by seq) into the running sums."""
+        self._pairs.sort(key=lambda pair: pair[0])
+        old, self._pairs = self._pairs[:count], self._pairs[count:]
+        pairs = np.array(old, dtype=float).reshape(-1, 7)
+        sums = _sums(
+            pairs[:, 1:4], pairs[:, 4:7], self._filter_gain(), self._folded.state, self.config
+        )
+        folded = self._folded
+        folded.paired += pairs.shape[0]
+        folded.contact += sums[0]
+        folded.sum_error2 += sums[1]
+        folded.sum_true2 += sums[2]
+        folded.sum_lagged2 += sums[3]
+        folded.state = sums[4]
+
+    def _filter_gain(self) -> float:
+        return math.exp(-2.0 * math.pi * self.config.filter_cutoff_hz * self.config.sample_period_s)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(seq, estimate (N, 3), true (N, 3))`` of the paired samples, in seq order."""
+        """``(seq, estimate (N, 3), true (N, 3))`` of the recent (not yet folded) pairs, by seq."""
         with self._lock:
             pairs = np.array(self._pairs, dtype=float).reshape(-1, 7)
         order = np.argsort(pairs[:, 0], kind="stable")
@@ -113,11 +154,17 @@ class ForceAccuracy:
 
     def summary(self) -> dict[str, Any]:
         """Relative RMS error during contact, raw and against the filtered true force."""
-        _, estimate, true = self.arrays()
-        contact = np.linalg.norm(true, axis=1) > self.config.contact_threshold_n
+        with self._lock:
+            pairs = np.array(self._pairs, dtype=float).reshape(-1, 7)
+            folded = self._folded
+            base = (folded.paired, folded.contact, folded.sum_error2, folded.sum_true2,
+                    folded.sum_lagged2, folded.state)  # fmt: skip
+        pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+        recent = _sums(pairs[:, 1:4], pairs[:, 4:7], self._filter_gain(), base[5], self.config)
+        contact = base[1] + recent[0]
         result: dict[str, Any] = {
-            "paired_samples": int(true.shape[0]),
-            "contact_samples": int(contact.sum()),
+            "paired_samples": int(base[0] + pairs.shape[0]),
+            "contact_samples": int(contact),
             "contact_threshold_n": self.config.contact_threshold_n,
             "no_force_estimates": self.no_force,
             "rms_error_n": None,
@@ -125,17 +172,11 @@ class ForceAccuracy:
             "relative_rms_error": None,
             "relative_rms_error_vs_filtered_true": None,
         }
-        if not contact.any():
+        if not contact:
             return result
-        rms_true = float(np.sqrt(np.mean(np.sum(true[contact] ** 2, axis=1))))
-        rms_error = float(np.sqrt(np.mean(np.sum((estimate - true)[contact] ** 2, axis=1))))
-        a = math.exp(-2.0 * math.pi * self.config.filter_cutoff_hz * self.config.sample_period_s)
-        filtered = np.empty_like(true)
-        state = true[0]
-        for k in range(true.shape[0]):
-            state = a * state + (1.0 - a) * true[k]
-            filtered[k] = state
-        rms_lagged = float(np.sqrt(np.mean(np.sum((estimate - filtered)[contact] ** 2, axis=1))))
+        rms_true = math.sqrt((base[3] + recent[2]) / contact)
+        rms_error = math.sqrt((base[2] + recent[1]) / contact)
+        rms_lagged = math.sqrt((base[4] + recent[3]) / contact)
         result.update(
             rms_error_n=round(rms_error, 6),
             rms_true_n=round(rms_true, 6),
@@ -145,6 +186,34 @@ class ForceAccuracy:
             else None,
         )
         return result
+
+
+def _sums(
+    estimate: np.ndarray,
+    true: np.ndarray,
+    a: float,
+    state: np.ndarray | None,
+    config: AccuracyConfig,
+) -> tuple[int, float, float, float, np.ndarray | None]:
+    """``(contact count, sum |e|^2, sum |t|^2, sum |e_lagged|^2, filter state)`` over pairs.
+
+    The comparison filter starts at ``state`` (``None``: at the first true force).
+    """
+    if true.shape[0] == 0:
+        return 0, 0.0, 0.0, 0.0, state
+    contact = np.linalg.norm(true, axis=1) > config.contact_threshold_n
+    filtered = np.empty_like(true)
+    current = true[0] if state is None else state
+    for k in range(true.shape[0]):
+        current = a * current + (1.0 - a) * true[k]
+        filtered[k] = current
+    return (
+        int(contact.sum()),
+        float(np.sum((estimate - true)[contact] ** 2)),
+        float(np.sum(true[contact] ** 2)),
+        float(np.sum((estimate - filtered)[contact] ** 2)),
+        current,
+    )
 
 
 def _bounded_put(

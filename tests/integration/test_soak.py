@@ -1,0 +1,309 @@
+"""Soak: the whole demo with its dashboard (and a browser on it) for 10 minutes at 1 kHz.
+
+    uv run pytest -m slow tests/integration/test_soak.py -s            # 10 minutes
+    TELEOP_SOAK_S=120 uv run pytest -m slow tests/integration/test_soak.py -s   # a shorter trial
+
+``teleop-force demo`` (not headless) runs master, slave, service (recording) and the dashboard;
+headless Chromium keeps the dashboard page open the whole time; the test's own Zenoh peer
+counts sequence gaps and measures latencies. Every 10 s the resident memory (RSS) of each
+process is sampled. Figures (written to ``test-output/soak.json`` and printed):
+
+- messages lost: the demo's own count (setpoints at the slave, joint states at the service,
+  estimates and true forces at the supervisor) plus the gaps seen by the test's peer;
+- memory: growth of each process's RSS per minute, by a linear fit after the first minute;
+- latency: p99 of the slave -> estimate latency (joint-state stamp to estimate publish, and to
+  its arrival at the test's peer) in the first and in the last minute;
+- the machine: cores and load average, at the start and at the end (it is shared).
+
+The two fast tests at the end check that the accumulators that grew with the session length
+(found by this soak) stay bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, wait_for
+
+from teleop_force import keys
+from teleop_force import messages as m
+from teleop_force.service_accuracy import FOLD_KEEP, AccuracyConfig, ForceAccuracy
+from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, open_session
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "test-output" / "soak.json"
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]  # fmt: skip
+SOAK_S = float(os.environ.get("TELEOP_SOAK_S", "600"))
+SAMPLE_PERIOD_S = 10.0
+RING = 1 << 16
+_SOURCE_SEQ = struct.Struct("<I")
+
+
+class Stream:
+    """The test's peer: gaps of the slave's joint states and estimates, latency per minute."""
+
+    def __init__(self, session: zenoh.Session, slave: str) -> None:
+        self.t0 = time.perf_counter()
+        self.js_seq = np.full(RING, -1, dtype=np.int64)
+        self.js_t_ns = np.zeros(RING, dtype=np.int64)
+        self.last = {"js": None, "est": None}
+        self.gaps = {"js": 0, "est": 0}
+        self.counts = {"js": 0, "est": 0}
+        self.service_ms: dict[int, list[float]] = {}
+        self.arrival_ms: dict[int, list[float]] = {}
+        self.lock = threading.Lock()
+        self.subs = [
+            session.declare_subscriber(keys.measured_js(slave), self.on_js),
+            session.declare_subscriber(keys.estimated_cf(slave), self.on_estimate),
+        ]
+
+    def _gap(self, name: str, seq: int) -> None:
+        last = self.last[name]
+        if last is not None and seq != last:
+            self.gaps[name] += m.sequence_gap(last, seq)
+        self.last[name] = seq
+        self.counts[name] += 1
+
+    def on_js(self, sample: zenoh.Sample) -> None:
+        _, _, seq, t_ns = m.peek_header(sample.payload.to_bytes())
+        with self.lock:
+            self.js_seq[seq % RING] = seq
+            self.js_t_ns[seq % RING] = t_ns
+            self._gap("js", seq)
+
+    def on_estimate(self, sample: zenoh.Sample) -> None:
+        arrival_ns = time.time_ns()
+        buf = sample.payload.to_bytes()
+        _, _, seq, t_ns = m.peek_header(buf)
+        (source,) = _SOURCE_SEQ.unpack_from(buf, 16)
+        minute = int((time.perf_counter() - self.t0) // 60)
+        with self.lock:
+            self._gap("est", seq)
+            if self.js_seq[source % RING] == source:
+                js_t = int(self.js_t_ns[source % RING])
+                self.service_ms.setdefault(minute, []).append((t_ns - js_t) * 1e-6)
+                self.arrival_ms.setdefault(minute, []).append((arrival_ns - js_t) * 1e-6)
+
+    def close(self) -> None:
+        for sub in self.subs:
+            sub.undeclare()
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def growth_mb_per_min(samples: list[tuple[float, float]], skip_s: float = 60.0) -> float | None:
+    """Slope of a linear fit of RSS [MB] against time [min], after ``skip_s`` of warm-up."""
+    points = [(t, r) for t, r in samples if t >= skip_s]
+    if len(points) < 3:
+        points = samples
+    if len(points) < 2:
+        return None
+    t, r = np.array(points).T
+    return float(np.polyfit(t / 60.0, r, 1)[0])
+
+
+def p99(values: list[float]) -> float | None:
+    return None if not values else float(np.percentile(values, 99))
+
+
+def read_lines(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except OSError:
+        return ""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not at /usr/bin/chromium")
+def test_soak_ten_minutes_with_the_dashboard(tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+    port = free_tcp_port()
+    out_path = tmp_path / "demo.out"
+    summary_path = tmp_path / "summary.json"
+    load_start = os.getloadavg()
+    with open(out_path, "w") as out:
+        demo = subprocess.Popen(
+            python_module("teleop_force.cli", "demo", "--port", str(port), "--record-dir",
+                          str(tmp_path), "--summary-json", str(summary_path),
+                          "--duration", f"{SOAK_S:g}"),
+            stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )  # fmt: skip
+    session = None
+    stream = None
+    samples: dict[str, list[tuple[float, float]]] = {}
+    try:
+        wait_for(lambda: "zenoh endpoint:" in read_lines(out_path), 60.0, "the demo's endpoint")
+        endpoint = re.search(r"zenoh endpoint: (\S+)", read_lines(out_path)).group(1)
+        session = open_session(
+            ZenohOptions(mode="peer", connect=(endpoint,), listen=(), multicast_scouting=False)
+        )
+        stream = Stream(session, "slave")
+        wait_for(
+            lambda: "all processes up" in read_lines(out_path) or demo.poll() is not None,
+            STARTUP_TIMEOUT_S * 3, "the demo to start",
+        )  # fmt: skip
+        text = read_lines(out_path)
+        assert "all processes up" in text, text
+        pids = {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", text)}
+        pids["supervisor"] = demo.pid
+        with sync_api.sync_playwright() as pw:
+            browser = pw.chromium.launch(
+                executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True,
+                timeout=STARTUP_TIMEOUT_S * 1000,
+            )  # fmt: skip
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 1000})
+                url = f"http://127.0.0.1:{port}/"
+                wait_for(lambda: _http_up(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
+                page.goto(url, wait_until="domcontentloaded", timeout=STARTUP_TIMEOUT_S * 1000)
+                page.wait_for_selector("#tf-trust", timeout=STARTUP_TIMEOUT_S * 1000)
+                started = time.perf_counter()
+                while demo.poll() is None:
+                    elapsed = time.perf_counter() - started
+                    for name, pid in pids.items():
+                        value = rss_mb(pid)
+                        if value is not None:
+                            samples.setdefault(name, []).append((elapsed, value))
+                    if elapsed > SOAK_S + STARTUP_TIMEOUT_S:
+                        raise AssertionError("the demo did not stop after its --duration")
+                    page.wait_for_timeout(SAMPLE_PERIOD_S * 1000)
+                trust_at_end = page.get_attribute("#tf-trust", "data-trust")
+            finally:
+                browser.close()
+        demo.wait(60)
+    finally:
+        if stream is not None:
+            stream.close()
+        if session is not None:
+            session.close()
+        if demo.poll() is None:
+            stop(demo, signal.SIGTERM, timeout_s=60.0)
+    summary = json.loads(summary_path.read_text())
+    minutes = sorted(stream.service_ms)
+    first, last = minutes[0], minutes[-1]
+    figures = {
+        "duration_s": summary["duration_s"],
+        "machine": {
+            "cores": os.cpu_count(),
+            "load_average_start": [round(x, 2) for x in load_start],
+            "load_average_end": [round(x, 2) for x in os.getloadavg()],
+        },
+        "messages_lost": summary["messages_lost"],
+        "test_peer": {"received": stream.counts, "gaps": stream.gaps},
+        "rss_growth_mb_per_min": {k: _round(growth_mb_per_min(v)) for k, v in samples.items()},
+        "rss_mb_first_last": {
+            k: [round(v[0][1], 1), round(v[-1][1], 1)] for k, v in samples.items()
+        },
+        "latency_p99_ms": {
+            "slave_to_estimate_first_minute": _round(p99(stream.service_ms[first])),
+            "slave_to_estimate_last_minute": _round(p99(stream.service_ms[last])),
+            "slave_to_test_peer_first_minute": _round(p99(stream.arrival_ms[first])),
+            "slave_to_test_peer_last_minute": _round(p99(stream.arrival_ms[last])),
+            "per_minute_slave_to_estimate": [_round(p99(stream.service_ms[k])) for k in minutes],
+        },
+        "demo_latency_ms": {
+            "master_to_slave": summary["master_to_slave_latency_ms"],
+            "slave_to_estimate": summary["slave_to_estimate_latency_ms"],
+        },
+        "rates_hz": summary["rates_hz"],
+        "loop_overruns": summary["loop_overruns"],
+        "slave_holds": summary["slave_holds"],
+        "malformed_dropped": summary["malformed_dropped"],
+        "cpu_percent_of_one_core": summary["cpu_percent_of_one_core"],
+        "force_error": summary["force_error"],
+        "dashboard_trust_at_end": trust_at_end,
+        "rss_samples_mb": {
+            k: [[round(t, 1), round(r, 1)] for t, r in v] for k, v in samples.items()
+        },
+    }
+    OUT.parent.mkdir(exist_ok=True)
+    OUT.write_text(json.dumps(figures, indent=1) + "\n")
+    shown = {k: v for k, v in figures.items() if k != "rss_samples_mb"}
+    print("\nsoak figures:\n" + json.dumps(shown, indent=1), file=sys.stderr)
+    assert summary["ok"], summary["failure"]
+    assert summary["messages_lost"]["total"] == 0
+    assert stream.gaps == {"js": 0, "est": 0}
+    for name, growth in figures["rss_growth_mb_per_min"].items():
+        assert growth is not None and growth < 1.0, (name, growth)  # < 10 MB over 10 minutes
+    lat = figures["latency_p99_ms"]
+    first_p99 = lat["slave_to_estimate_first_minute"]
+    assert lat["slave_to_estimate_last_minute"] <= max(2.0 * first_p99, first_p99 + 5.0)
+
+
+def _http_up(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def _round(value: float | None) -> float | None:
+    return None if value is None else round(value, 3)
+
+
+# --------------------------------------------------------------------------- bounded state
+
+
+def test_the_supervisors_accuracy_accumulator_stays_bounded():
+    """It kept every pair (~17 MB and O(n) work per summary per minute at 1 kHz): now folded."""
+    rng = np.random.default_rng(3)
+    accuracy = ForceAccuracy(AccuracyConfig())
+    n = 5 * FOLD_KEEP
+    true = np.column_stack([np.zeros(n), -np.abs(np.sin(np.arange(n) / 700.0)), np.zeros(n)])
+    estimate = true + rng.normal(0.0, 0.05, size=true.shape)
+    for k in range(n):
+        accuracy.add_true(k, true[k])
+        accuracy.add_estimate(k, estimate[k])
+        assert len(accuracy._pairs) < 2 * FOLD_KEEP
+    summary = accuracy.summary()
+    contact = np.linalg.norm(true, axis=1) > 0.1
+    rms_true = math.sqrt(np.mean(np.sum(true[contact] ** 2, axis=1)))
+    rms_error = math.sqrt(np.mean(np.sum((estimate - true)[contact] ** 2, axis=1)))
+    assert summary["paired_samples"] == n and summary["contact_samples"] == int(contact.sum())
+    assert summary["relative_rms_error"] == pytest.approx(rms_error / rms_true, abs=1e-6)
+
+
+def test_the_services_malformed_table_stays_bounded():
+    from teleop_force.dynamic_model import DynamicModel
+    from teleop_force.models import DEFAULT_MODEL_PATH
+    from teleop_force.service import MAX_COUNTED_KEYS, OTHER_KEYS, ForceService
+
+    session = open_session(ZenohOptions(mode="peer", listen=(), multicast_scouting=False))
+    try:
+        service = ForceService(session, DynamicModel.load(DEFAULT_MODEL_PATH))
+        for k in range(10 * MAX_COUNTED_KEYS):
+            service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
+    finally:
+        session.close()
+    table = service.stats()["malformed"]["by_key"]
+    assert len(table) == MAX_COUNTED_KEYS + 1
+    assert table[OTHER_KEYS] == 9 * MAX_COUNTED_KEYS
+    assert sum(table.values()) == 10 * MAX_COUNTED_KEYS
