@@ -37,6 +37,7 @@ import zenoh
 
 from teleop_force import keys
 from teleop_force import messages as m
+from teleop_force.service_transport import declare_data_publisher
 from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -150,10 +151,15 @@ class FakeSystem:
         self.reason = ""
         self.published = 0
         self.late_ms_max = 0.0
+        self.t_start = math.nan
         self.requests: list[tuple[str, dict | None]] = []
         self._stop = threading.Event()
+        # The QoS of the real slave, master and service (BLOCK, express, real-time): a
+        # subscriber that falls behind delays the stream instead of losing it. With Zenoh's
+        # default (DROP), the dashboard's link, the busiest, lost samples whenever a CPU-starved
+        # process on a loaded machine left its socket undrained for a moment.
         self._pubs = {
-            name: session.declare_publisher(key)
+            name: declare_data_publisher(session, key)
             for name, key in (
                 ("js", keys.measured_js(DEVICE)),
                 ("fe", keys.estimated_cf(DEVICE)),
@@ -204,7 +210,12 @@ class FakeSystem:
         self.adapting = text == "on"
 
     def start(self) -> None:
+        self.t_start = time.perf_counter()
         self._thread.start()
+
+    def rate_hz(self) -> float:
+        """Mean JointState rate achieved since :meth:`start` (below 1 kHz when starved)."""
+        return self.published / max(time.perf_counter() - self.t_start, 1e-9)
 
     def stop(self) -> None:
         """Stop publishing and undeclare everything; safe if never started, idempotent.
@@ -630,6 +641,7 @@ def test_dashboard_renders_updates_and_warns(system, page):
         "dashboard_lost_total": dashboard_lost,
         "dashboard_stats_row_measured_js": row,
         "publisher_late_ms_max": round(fake.late_ms_max, 2),
+        "publisher_rate_hz": round(fake.rate_hz(), 1),
         "warning_latency_s": round(warn_latency, 3),
         "dashboard_cpu_fraction_of_one_core": round(cpu / elapsed, 3),
         "elapsed_s": round(elapsed, 1),
