@@ -140,6 +140,7 @@ def read_lines(path: Path) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(SOAK_S + 900)  # overrides the suite's 600 s per test (pyproject.toml)
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not at /usr/bin/chromium")
 def test_soak_ten_minutes_with_the_dashboard(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
