@@ -37,6 +37,7 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -79,6 +80,8 @@ from teleop_force.zenoh_session import ZenohOptions, open_session, options_from_
 ROLE = "slave"
 STATUS_PERIOD_S = 0.1
 SEQ_MASK = 0xFFFF_FFFF
+#: Hold events kept for the statistics (the oldest are dropped; all are counted).
+HOLD_EVENTS_KEPT = 20
 
 
 @dataclass(frozen=True)
@@ -221,7 +224,10 @@ class SlaveProcess:
         self.published = 0
         #: Time spent publishing a joint state (congestion control BLOCK waits here).
         self.put_time = LatencyHistogram()
-        self.hold_events: list[dict[str, Any]] = []
+        #: The last HOLD_EVENTS_KEPT hold events (bounded: a long run with many holds
+        #: cannot grow it); ``hold_events_total`` counts them all.
+        self.hold_events: deque[dict[str, Any]] = deque(maxlen=HOLD_EVENTS_KEPT)
+        self.hold_events_total = 0
         self._status_seq = 0
         self._last_status_s = -math.inf
         self._status_pub: zenoh.Publisher | None = None
@@ -242,7 +248,8 @@ class SlaveProcess:
             "joint_state_put_ms": self.put_time.summary_ms(),
             "master_alive": self.presence.alive,
             "holds": self.safety.holds,
-            "hold_events": self.hold_events[-20:],
+            "hold_events": list(self.hold_events.copy()),  # copy: atomic against the loop
+            "hold_events_total": self.hold_events_total,
             "torque_clips": self.plant.clip_count,
         }
 
@@ -352,6 +359,7 @@ class SlaveProcess:
         if self.presence.lost_at_s is not None and not self.presence.alive:
             event["since_token_lost_ms"] = round((now_s - self.presence.lost_at_s) * 1e3, 3)
         self.hold_events.append(event)
+        self.hold_events_total += 1
         if self.safety.state == m.SafetyState.HOLDING:
             log(ROLE, f"HOLDING: {reason}")
 

@@ -60,6 +60,7 @@ class BenchOptions:
 
     Attributes:
         quick: Short run (smoke test): small sizes everywhere.
+        estimation: Time the estimation step (figure 1).
         identify_samples: Samples of the identification figures (240,000 = 4 min at 1 kHz).
         identify_simulated_s: Seconds simulated per recording at most: a longer recording is
             made of two 22 s periods of the multisine, the second one repeated.
@@ -78,6 +79,7 @@ class BenchOptions:
     """
 
     quick: bool = False
+    estimation: bool = True
     identify_samples: int = 240_000
     identify_simulated_s: float = 44.0
     estimate_samples: int = 20_000
@@ -129,6 +131,12 @@ def _versions() -> dict[str, str]:
     }
 
 
+def _parts(options: BenchOptions) -> list[str]:
+    flags = {"estimation": options.estimation, "replay": options.replay,
+             "messaging": options.messaging}  # fmt: skip
+    return ["identification"] + [name for name, on in flags.items() if on]
+
+
 def _goals(result: dict[str, Any]) -> dict[str, Any]:
     out = {}
     for key, (op, bound) in GOALS.items():
@@ -159,6 +167,7 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
         "cpu_count": os.cpu_count(),
         "load_average_start": [round(x, 2) for x in os.getloadavg()],
         "versions": _versions(),
+        "parts": _parts(options),
     }
     work = options.work_dir
     temporary = work is None
@@ -187,36 +196,44 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
             result["model_found_effects"] = len(model.effects)
 
             # -- 1. estimation step, and its growth with the wavelets
-            longest = max(options.replay_lengths_s) if options.replay else 0.0
-            duration = max(longest, options.replay_wavelets_length_s, 1.0)
-            duration = max(duration, (options.estimate_samples + 600) / 1000.0)
-            log(f"simulating a {duration:g} s palpation")
-            palpation = palpation_arrays(duration, options.seed)
-            log(f"estimation step: {options.estimate_samples} timed updates")
-            step = time_estimation_step(
-                model, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
-                options.estimate_samples,
-            )  # fmt: skip
-            result.update(
-                estimate_step_p50_us=rounded(step.p50_us),
-                estimate_step_p99_us=rounded(step.p99_us),
-                estimate_step_max_us=rounded(step.max_us),
-                estimate_step_mean_us=rounded(step.mean_us),
-                estimate_step_cpu_p50_us=rounded(step.cpu_p50_us),
-                estimate_step_cpu_p99_us=rounded(step.cpu_p99_us),
-                rnea_us=rounded(step.rnea_us, 4),
-                estimate_step_vs_rnea=rounded(step.vs_rnea, 2),
-                estimate_step_p99_vs_rnea=rounded(step.p99_vs_rnea, 2),
-                estimate_samples=step.samples,
-                estimate_timer_overhead_us=rounded(step.timer_overhead_us, 4),
-            )
+            palpation: dict[str, np.ndarray] = {}
+            if options.estimation or options.replay:
+                longest = max(options.replay_lengths_s) if options.replay else 0.0
+                duration = max(longest, options.replay_wavelets_length_s, 1.0)
+                duration = max(duration, (options.estimate_samples + 600) / 1000.0)
+                log(f"simulating a {duration:g} s palpation")
+                palpation = palpation_arrays(duration, options.seed)
+            result.update(dict.fromkeys(_ESTIMATION_KEYS))
+            if options.estimation:
+                log(f"estimation step: {options.estimate_samples} timed updates")
+                step = time_estimation_step(
+                    model, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
+                    options.estimate_samples,
+                )  # fmt: skip
+                result.update(
+                    estimate_step_p50_us=rounded(step.p50_us),
+                    estimate_step_p99_us=rounded(step.p99_us),
+                    estimate_step_max_us=rounded(step.max_us),
+                    estimate_step_mean_us=rounded(step.mean_us),
+                    estimate_step_cpu_p50_us=rounded(step.cpu_p50_us),
+                    estimate_step_cpu_p99_us=rounded(step.cpu_p99_us),
+                    rnea_us=rounded(step.rnea_us, 4),
+                    estimate_step_vs_rnea=rounded(step.vs_rnea, 2),
+                    estimate_step_p99_vs_rnea=rounded(step.p99_vs_rnea, 2),
+                    estimate_samples=step.samples,
+                    estimate_timer_overhead_us=rounded(step.timer_overhead_us, 4),
+                )
             variants: dict[str, Path] = {}
             by_p50, by_p99, by_cpu_p99, by_ratio, by_counts = {}, {}, {}, {}, {}
-            for per_joint in options.wavelet_settings:
+            models_needed = options.estimation or options.replay
+            for per_joint in options.wavelet_settings if models_needed else ():
                 variant = with_wavelets(model, per_joint, options.seed)
                 key = str(per_joint)
                 variants[key] = work_dir / f"bench_model_{per_joint}.json"
                 variant.save(variants[key])
+                by_counts[key] = wavelet_counts(variant)
+                if not options.estimation:
+                    continue
                 timing = time_estimation_step(
                     variant, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
                     max(500, options.estimate_samples // 2),
@@ -225,15 +242,15 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
                 by_p99[key] = rounded(timing.p99_us)
                 by_cpu_p99[key] = rounded(timing.cpu_p99_us)
                 by_ratio[key] = rounded(timing.vs_rnea, 2)
-                by_counts[key] = wavelet_counts(variant)
                 log(f"  {by_counts[key]} wavelets: p50 {timing.p50_us:.1f} us")
-            result.update(
-                estimate_step_p50_us_by_wavelets=by_p50,
-                estimate_step_p99_us_by_wavelets=by_p99,
-                estimate_step_cpu_p99_us_by_wavelets=by_cpu_p99,
-                estimate_step_vs_rnea_by_wavelets=by_ratio,
-                wavelets_per_joint_by_setting=by_counts,
-            )
+            if options.estimation:
+                result.update(
+                    estimate_step_p50_us_by_wavelets=by_p50,
+                    estimate_step_p99_us_by_wavelets=by_p99,
+                    estimate_step_cpu_p99_us_by_wavelets=by_cpu_p99,
+                    estimate_step_vs_rnea_by_wavelets=by_ratio,
+                )
+            result["wavelets_per_joint_by_setting"] = by_counts or None
 
             # -- 4-5. replay through the service, its memory, growth with length and wavelets
             result.update(dict.fromkeys(_REPLAY_KEYS))
@@ -351,6 +368,18 @@ def _messaging_figures(
     return figures
 
 
+_ESTIMATION_KEYS = (
+    "estimate_step_p50_us", "estimate_step_p99_us", "estimate_step_max_us",
+    "estimate_step_mean_us", "estimate_step_cpu_p50_us", "estimate_step_cpu_p99_us", "rnea_us",
+    "estimate_step_vs_rnea", "estimate_step_p99_vs_rnea", "estimate_samples",
+    "estimate_timer_overhead_us", "estimate_step_p50_us_by_wavelets",
+    "estimate_step_p99_us_by_wavelets", "estimate_step_cpu_p99_us_by_wavelets",
+    "estimate_step_vs_rnea_by_wavelets",
+)  # fmt: skip
+#: Parts of ``teleop-force bench`` that ``--only`` selects (identification always runs: its
+#: model is the benchmark model of the others).
+PARTS = ("identification", "estimation", "replay", "messaging")
+
 _REPLAY_KEYS = (
     "replay_x_realtime", "replay_peak_rss_mb", "replay_x_realtime_by_length_s",
     "replay_peak_rss_mb_by_length_s", "replay_x_realtime_by_wavelets",
@@ -377,6 +406,9 @@ def add_bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quick", action="store_true", help="short run at small sizes (smoke test)"
     )
+    parser.add_argument("--only", default=None, metavar="PART[,PART]",
+                        help="run only these parts: " + ", ".join(PARTS) + " (identification "
+                        "always runs: it makes the benchmark model); e.g. --only identification")
     parser.add_argument("--no-messaging", action="store_true", help="skip the demo (latency, loss)")
     parser.add_argument("--no-replay", action="store_true", help="skip the replay figures")
     parser.add_argument("--messaging-duration", type=float, default=None, metavar="S",
@@ -396,9 +428,19 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
     """:class:`BenchOptions` of parsed ``teleop-force bench`` arguments."""
     from teleop_force.errors import ConfigurationError
 
+    parts = set(PARTS)
+    if args.only is not None:
+        parts = {p.strip() for p in args.only.split(",") if p.strip()}
+        unknown = parts - set(PARTS)
+        if unknown or not parts:
+            raise ConfigurationError(
+                f"--only: unknown part(s) {', '.join(sorted(unknown)) or '(none)'}; "
+                f"choose from {', '.join(PARTS)}"
+            )
     changes: dict[str, Any] = {
-        "messaging": not args.no_messaging,
-        "replay": not args.no_replay,
+        "estimation": "estimation" in parts,
+        "messaging": not args.no_messaging and "messaging" in parts,
+        "replay": not args.no_replay and "replay" in parts,
         "messaging_model": args.messaging_model,
     }
     if args.messaging_duration is not None:

@@ -13,16 +13,28 @@ Over the same recordings (two, ``samples`` in all at 1 kHz), three things are ti
   Lyapunov adaptation (:meth:`~teleop_force.friction.adaptation.LyapunovAdapter.run`).
 
 Each figure is ``recorded seconds / wall seconds``; CPU seconds are reported alongside.
+
+All figures are the **steady state**: the batch fit's compiled kernel
+(:mod:`teleop_force.friction.kernels`, numba) is loaded before anything is timed
+(:func:`~teleop_force.friction.kernels.warm_up`). What that costs once per process is
+reported separately: ``identify_jit_first_call_s`` (this process: the compiled code read from
+numba's disk cache, or compiled when there is none) and ``identify_jit_compile_s`` (a fresh
+compilation, measured in a subprocess with an empty cache directory).
 """
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from teleop_force.bench_util import Stopwatch, stopwatch
 from teleop_force.dynamic_model import DynamicModel
+from teleop_force.friction import kernels
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.interchange_csv import Recording
@@ -41,6 +53,8 @@ class IdentificationTiming:
         pipeline, prepare, batch, adaptive: Wall and CPU time of each part (module docstring).
         batch_sizes, adaptive_sizes: Active wavelets per joint after each friction fit.
         model: The identified model (benchmark model of the other figures).
+        jit_first_call_s: The kernel's first call in this process (disk cache or compile).
+        jit_compile_s: A fresh compilation of the kernel (None if it could not be measured).
 
     """
 
@@ -53,6 +67,8 @@ class IdentificationTiming:
     batch_sizes: list[int] = field(default_factory=list)
     adaptive_sizes: list[int] = field(default_factory=list)
     model: DynamicModel | None = None
+    jit_first_call_s: float | None = None
+    jit_compile_s: float | None = None
 
     def x_realtime(self, part: Stopwatch) -> float:
         """Return ``recorded_s`` over the part's wall time."""
@@ -74,6 +90,8 @@ class IdentificationTiming:
             out[f"identify_{name}_wall_s"] = round(part.wall_s, 3)
             out[f"identify_{name}_cpu_s"] = round(part.cpu_s, 3)
         out["identify_batch_wavelets_per_joint"] = self.batch_sizes
+        for key, value in (("first_call", self.jit_first_call_s), ("compile", self.jit_compile_s)):
+            out[f"identify_jit_{key}_s"] = None if value is None else round(value, 3)
         out["identify_adaptive_wavelets_per_joint"] = self.adaptive_sizes
         return out
 
@@ -82,6 +100,9 @@ def time_identification(
     recordings: Sequence[Recording], log: Callable[[str], None] = lambda s: None
 ) -> IdentificationTiming:
     """Run and time the pipeline, its filtered-regressor stage and both friction fits."""
+    first_call_s = kernels.warm_up()
+    log(f"identify: compiled kernel loaded in {first_call_s:.2f} s (not in the figures)")
+    compile_s = fresh_compile_seconds()
     description = omni_description()
     samples = sum(r.t_s.size for r in recordings)
     recorded_s = samples * float(recordings[0].t_s[1] - recordings[0].t_s[0])
@@ -122,4 +143,21 @@ def time_identification(
         batch_sizes=results["batch"][1],
         adaptive_sizes=results["adaptive"][1],
         model=model,
+        jit_first_call_s=first_call_s,
+        jit_compile_s=compile_s,
     )
+
+
+def fresh_compile_seconds(timeout_s: float = 300.0) -> float | None:
+    """Seconds to compile the batch fit's kernel from scratch (subprocess, empty cache)."""
+    code = "from teleop_force.friction import kernels; print(kernels.warm_up())"
+    with tempfile.TemporaryDirectory(prefix="teleop-bench-numba-") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                timeout=timeout_s, check=True,
+            )  # fmt: skip
+            return float(proc.stdout.strip().splitlines()[-1])
+        except (subprocess.SubprocessError, OSError, ValueError, IndexError):
+            return None

@@ -15,7 +15,7 @@ import numpy as np
 from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.filtered_regressor import FilterConfig, FilteredSignals
 from teleop_force.friction import friction_from_dict
-from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.regressor import BaseParameters
 from teleop_force.robot import RobotDescription
@@ -114,50 +114,162 @@ class DynamicModel:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "<model>") -> DynamicModel:
-        """Read what :meth:`to_dict` wrote; raise ModelFileError naming the field otherwise."""
-        from teleop_force.effects import effect_from_dict
+        """Read what :meth:`to_dict` wrote; raise ModelFileError naming the file and field.
 
+        Every number the estimate depends on must be finite (``base_values``,
+        ``offsets_nm``, ``base.dependency``, friction parameters, filter settings, effect
+        coefficients); indices must lie inside what they index (``base.independent``, a
+        network's active wavelets, friction inputs); the base must fit the robot's parameter
+        count when the robot can be resolved. ``base_std`` may hold NaN (unknown).
+        """
         if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
             raise ModelFileError("not a teleop-force model file", path=source, column="format")
-        if data.get("version") != MODEL_VERSION:
+        version = data.get("version")
+        if type(version) is not int or version != MODEL_VERSION:
+            shown = repr(version) if not isinstance(version, int) or abs(version) < 10**9 else "?"
             raise ModelFileError(
-                f"model version {data.get('version')!r} is not supported (expected {MODEL_VERSION})",
+                f"model version {shown} is not supported (expected {MODEL_VERSION})",
                 path=source,
                 column="version",
             )
         current = "robot"
         try:
-            robot = str(data["robot"])
+            robot = data["robot"]
+            if not isinstance(robot, str) or not robot:
+                raise ModelFileError("expected a robot name or description file")
             current = "n_joints"
-            n_joints = int(data["n_joints"])
+            n_joints = file_int(data["n_joints"], current, 1, MAX_JOINTS)
             current = "filter"
-            config = FilterConfig(**data["filter"])
+            config = _filter_config(data["filter"])
             current = "base"
-            base = None if data["base"] is None else BaseParameters.from_dict(data["base"])
+            base_value = data["base"]
+            base = None if base_value is None else BaseParameters.from_dict(base_value)
             current = "base_values"
-            values = np.asarray(data["base_values"], dtype=float)
-            std = np.asarray(data.get("base_std", np.zeros_like(values)), dtype=float)
+            values = _vector(data["base_values"], current, 0 if base is None else base.count)
+            current = "base_std"
+            std = data.get("base_std")
+            if std is None:
+                std = np.zeros_like(values)
+            else:
+                std = _vector(std, current, values.size, finite=False)
             current = "friction"
             friction = friction_from_dict(data["friction"])
+            if friction.n_joints != n_joints:
+                raise ModelFileError(
+                    f"friction model has {friction.n_joints} joints, expected {n_joints}"
+                )
             current = "offsets_nm"
-            offsets = np.asarray(data.get("offsets_nm", np.zeros(n_joints)), dtype=float)
+            offsets = data.get("offsets_nm")
+            offsets = np.zeros(n_joints) if offsets is None else _vector(offsets, current, n_joints)
             current = "effects"
-            effects = tuple(effect_from_dict(e) for e in data.get("effects", []))
-            return cls(robot, n_joints, config, base, values, std, friction, offsets, effects, dict(data.get("notes", {})))
-        except ModelFileError:
-            raise
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise ModelFileError(f"bad value: {exc}", path=source, column=current) from exc
+            effects = _effects(data.get("effects", []), n_joints)
+            current = "notes"
+            notes = data.get("notes", {})
+            if not isinstance(notes, dict):
+                raise ModelFileError(f"expected an object, got {type(notes).__name__}")
+            current = "base"
+            if base is not None:
+                _check_base_fits_robot(base, robot, n_joints)
+            current = "model"
+            return cls(
+                robot, n_joints, config, base, values, std, friction, offsets, effects, dict(notes)
+            )
+        except ModelFileError as exc:
+            column = current if exc.column is None else f"{current}.{exc.column}"
+            if exc.column is not None and exc.column.split(".")[0].split("[")[0] == current:
+                column = exc.column
+            raise ModelFileError(exc.problem, path=source, row=exc.row, column=column) from None
+        except KeyError as exc:
+            raise ModelFileError(f"missing {exc}", path=source, column=current) from None
+        except (TypeError, ValueError, ArithmeticError, LookupError) as exc:
+            # ModelError and ConfigurationError are ValueErrors: their message names the problem
+            raise ModelFileError(f"bad value: {exc}", path=source, column=current) from None
 
     @classmethod
     def load(cls, path: str | Path) -> DynamicModel:
-        """Load a model saved by :meth:`save`."""
+        """Load a model saved by :meth:`save`; raise ModelFileError naming the file (and field)."""
         try:
-            text = Path(path).read_text()
+            raw = Path(path).read_bytes()
         except OSError as exc:
-            raise ModelFileError(f"cannot read: {exc.strerror}", path=path) from exc
+            raise ModelFileError(f"cannot read: {exc.strerror or exc}", path=path) from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ModelFileError(f"not UTF-8 text (byte {exc.start})", path=path) from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise ModelFileError(f"not JSON: {exc.msg}", path=path, row=exc.lineno) from exc
+            raise ModelFileError(f"not JSON: {exc.msg}", path=path, row=exc.lineno) from None
+        except (ValueError, RecursionError) as exc:  # e.g. an integer of > 4300 digits
+            raise ModelFileError(f"not JSON: {str(exc)[:120]}", path=path) from None
         return cls.from_dict(data, str(path))
+
+
+def _vector(value: object, field: str, size: int, finite: bool = True) -> np.ndarray:
+    """Read a flat list of ``size`` numbers (finite unless told); ModelFileError names ``field``."""
+    out = file_floats(value, field, finite=finite)
+    if out.shape != (size,):
+        raise ModelFileError(f"expected {size} numbers, got shape {out.shape}", column=field)
+    return out
+
+
+def _filter_config(value: object) -> FilterConfig:
+    """Read the ``filter`` object: known keys only, finite numbers within FilterConfig's ranges."""
+    if not isinstance(value, dict):
+        raise ModelFileError(f"expected an object, got {type(value).__name__}")
+    for key, item in value.items():
+        number = file_floats(item, str(key))
+        if number.ndim != 0:
+            raise ModelFileError("expected a number", column=str(key))
+    try:
+        return FilterConfig(**value)
+    except TypeError as exc:  # an unknown key
+        raise ModelFileError(str(exc)) from None
+    except ValueError as exc:  # ConfigurationError: out of range
+        raise ModelFileError(str(exc)) from None
+
+
+def _effects(value: object, n_joints: int) -> tuple[Any, ...]:
+    """Read the found effects: valid entries acting on a joint of the model, finite numbers."""
+    from teleop_force.effects import effect_from_dict
+
+    if not isinstance(value, list):
+        raise ModelFileError(f"expected a list, got {type(value).__name__}")
+    out = []
+    for i, entry in enumerate(value):
+        field = f"effects[{i}]"
+        try:
+            effect = effect_from_dict(entry)
+        except (KeyError, TypeError, ValueError, ArithmeticError, LookupError) as exc:
+            raise ModelFileError(f"bad effect: {exc}", column=field) from None
+        joint = getattr(effect.spec, "joint", None)
+        if isinstance(joint, bool) or not isinstance(joint, int) or not 0 <= joint < n_joints:
+            raise ModelFileError(
+                f"acts on joint {joint!r}, outside 0..{n_joints - 1}", column=field
+            )
+        file_floats(effect.coefficients, f"{field}.coefficients")
+        out.append(effect)
+    return tuple(out)
+
+
+def _check_base_fits_robot(base: BaseParameters, robot: str, n_joints: int) -> None:
+    """Check the base indexes the robot's full parameters (skipped if the robot is not found)."""
+    from teleop_force.errors import TeleopForceError
+    from teleop_force.regressor import full_parameter_names
+
+    try:
+        description = resolve_robot(robot, n_joints)
+    except (TeleopForceError, OSError):
+        return  # reported when the model is used (an estimator resolves it again)
+    if description.model is None:
+        return
+    if description.n_joints != n_joints:
+        raise ModelFileError(
+            f"robot {robot!r} has {description.n_joints} joints, the model {n_joints}"
+        )
+    expected = len(full_parameter_names(description))
+    if len(base.full_names) != expected:
+        raise ModelFileError(
+            f"{len(base.full_names)} full parameters, robot {robot!r} has {expected}",
+            column="full_names",
+        )

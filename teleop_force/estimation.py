@@ -93,15 +93,16 @@ def _compile_rigid_terms(
     of ``M``); the result is ``T^T M vm + rotor qd`` and ``T^T (g - C^T vm) + springs``.
     """
     n = robot.n
+    n_model = robot.model.nv  # > n for a closed chain written as a tree (T is n_model x n)
     tt = robot.coupling.T
     lines = ["def rigid_terms(q, qd, vm, M, C, g):"]
-    for i in range(n):
-        mass = " + ".join(f"M[{min(i, j)}][{max(i, j)}] * vm[{j}]" for j in range(n))
-        coriolis = " + ".join(f"C[{j}][{i}] * vm[{j}]" for j in range(n))
+    for i in range(n_model):
+        mass = " + ".join(f"M[{min(i, j)}][{max(i, j)}] * vm[{j}]" for j in range(n_model))
+        coriolis = " + ".join(f"C[{j}][{i}] * vm[{j}]" for j in range(n_model))
         lines.append(f"    p{i} = {mass}")
         lines.append(f"    w{i} = g[{i}] - ({coriolis})")
-    lines.append(f"    p = [{', '.join(f'p{i}' for i in range(n))}]")
-    lines.append(f"    w = [{', '.join(f'w{i}' for i in range(n))}]")
+    lines.append(f"    p = [{', '.join(f'p{i}' for i in range(n_model))}]")
+    lines.append(f"    w = [{', '.join(f'w{i}' for i in range(n_model))}]")
     rotor = robot.description.rotor_inertia_kgm2
     spring: list[list[str]] = [[] for _ in range(n)]
     for s, k in zip(robot.description.springs, spring_stiffness, strict=True):
@@ -130,8 +131,8 @@ class _RigidBody:
         self._jacobian_to_motor = compile_linear_map(robot.coupling.T)
         tip_frame = robot.description.tip_frame
         self.tip = None if tip_frame is None else robot.model.getFrameId(tip_frame)
-        self._q = np.zeros(self.n)
-        self._v = np.zeros(self.n)
+        self._q = np.zeros(robot.model.nv)
+        self._v = np.zeros(robot.model.nv)
 
     def terms(self, q: list[float], qd: list[float]) -> tuple[list[float], list[float]]:
         """``M(q) qd`` and ``-C(q, qd)^T qd + N(q) + tau_spring(q)`` in motor coordinates."""

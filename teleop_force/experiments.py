@@ -172,8 +172,9 @@ def run_experiments(
     table_three = {}
     for mode in ("equal", "opposite"):
         cv_model = trained[f"{mode}/cv"][0]
-        fit = trained[f"{mode}/cv"][1].rigid
-        r = 0 if cv_model.base is None else cv_model.base.count
+        cv_report = trained[f"{mode}/cv"][1]
+        fit = cv_report.stage_one or cv_report.rigid
+        r = 0 if cv_report.stage_one is not None or cv_model.base is None else cv_model.base.count
         table_three[mode] = [(fit.parameter_names[r + i], float(fit.parameters[r + i]), float(fit.standard_deviations[r + i]))
                              for i in range(6)]
     for i in range(6):

@@ -1,9 +1,11 @@
 """From recordings to a :class:`~teleop_force.dynamic_model.DynamicModel`, and back to figures.
 
 Identification runs in two stages, as in the paper: the rigid-body base parameters are fitted
-together with a Coulomb-viscous (or coupled) friction that absorbs friction "noise"; a
-wavelet-network friction is then trained on what the rigid-body model leaves (the filtered
-friction torque), with the stage-one coupled CV kept as its off-ground fallback.
+together with a Coulomb-viscous (or coupled) friction that absorbs friction "noise" (with the
+guards of :mod:`teleop_force.rigid_body_fit`: zero-phase smoothed angles and nuisance
+low-speed friction terms, then the CV friction refitted on the causal signals with the rigid
+body fixed); a wavelet-network friction is then trained on what the rigid-body model leaves
+(the filtered friction torque), with the stage-one coupled CV kept as its off-ground fallback.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from teleop_force.identification import Identification, least_squares, relative_
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.regressor import BaseParameters, RigidBodyRegressor
+from teleop_force.rigid_body_fit import RigidBodyFitOptions, fit_rigid_body
 from teleop_force.robot import RobotDescription
 
 
@@ -51,11 +54,17 @@ class PreparedRecording:
 
 @dataclass(frozen=True, eq=False)
 class FitReport:
-    """What identification produced besides the model."""
+    """What identification produced besides the model.
+
+    ``rigid`` is the rigid-body fit (base parameters first); ``stage_one`` the fit of the
+    stage-one CV friction (and offsets) with the rigid body fixed, None when both were fitted
+    together (no rigid body, or :meth:`RigidBodyFitOptions.plain`).
+    """
 
     rigid: Identification
     friction_relative_rms: np.ndarray
     details: dict[str, Any] = field(default_factory=dict)
+    stage_one: Identification | None = None
 
 
 def prepare(
@@ -123,11 +132,13 @@ def identify_model(
     friction_kind: str = "wn",
     config: FilterConfig | None = None,
     wavelet: WaveletOptions | None = None,
+    rigid_body: RigidBodyFitOptions | None = None,
 ) -> tuple[DynamicModel, FitReport]:
     """Identify rigid-body parameters and friction from recordings."""
     if friction_kind not in FRICTION_KINDS:
         raise ConfigurationError(f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}")
     config = config or FilterConfig()
+    rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
     stage_one = _stage_one_friction("cv" if friction_kind == "cv" else "coupled-cv", description)
     with_offsets = not description.has_rigid_body
@@ -137,13 +148,23 @@ def identify_model(
         names += stage_one.parameter_names(j)
     if with_offsets:
         names += [f"offset_{j + 1}" for j in range(description.n_joints)]
-    rigid_fit = least_squares(regressor, torque, names)
     r = 0 if base is None else base.count
     p_f = int(sum(stage_one.parameter_counts()))
-    base_values = rigid_fit.parameters[:r]
-    base_std = rigid_fit.standard_deviations[:r]
-    stage_one.parameters = rigid_fit.parameters[r : r + p_f].copy()
-    offsets = rigid_fit.parameters[r + p_f :] if with_offsets else np.zeros(description.n_joints)
+    stage_one_fit: Identification | None = None
+    if base is not None and rigid_body != RigidBodyFitOptions.plain():
+        rigid = fit_rigid_body(recordings, description, base, stage_one, config, rigid_body)
+        rigid_fit = rigid.identification
+        base_values, base_std = rigid.base_values, rigid.base_std
+        friction_torque = torque - np.einsum("kjp,p->kj", regressor[:, :, :r], base_values)
+        stage_one_fit = least_squares(regressor[:, :, r:], friction_torque, names[r:])
+        friction_values = stage_one_fit.parameters
+    else:
+        rigid_fit = least_squares(regressor, torque, names)
+        base_values = rigid_fit.parameters[:r]
+        base_std = rigid_fit.standard_deviations[:r]
+        friction_values = rigid_fit.parameters[r:]
+    stage_one.parameters = friction_values[:p_f].copy()
+    offsets = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
     details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
     friction: FrictionModel = stage_one
     if friction_kind == "wn":
@@ -177,7 +198,7 @@ def identify_model(
         },
     )
     training = evaluate_prepared(model, prepared)
-    return model, FitReport(rigid_fit, training["relative_rms"], details)
+    return model, FitReport(rigid_fit, training["relative_rms"], details, stage_one_fit)
 
 
 def typical_inertia(

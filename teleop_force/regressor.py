@@ -7,6 +7,10 @@ Izz``), one rotor inertia per motor, one stiffness per spring. Three regressors 
 - :meth:`RigidBodyRegressor.momentum`: ``Y_p(q, qd) pi = M(q) qd``, the generalized momentum;
 - :meth:`RigidBodyRegressor.coriolis_gravity`: ``Y_w(q, qd) pi = -C^T qd + N + tau_spring``.
 
+Every regressor is pinocchio's in model coordinates mapped through the coupling:
+``Y_motor(q, qd, qdd) = T^T Y_model(T q, T qd, T qdd)``, for a square ``T`` and for a closed
+chain written as a tree with extra joints (``T`` is then ``n_model x n``).
+
 Since ``d/dt (M qd) = M qdd + Mdot qd`` and ``Mdot = C + C^T``, the torque is
 ``d/dt p - C^T qd + N + tau_spring``: the momentum form needs no acceleration once filtered.
 ``Mdot qd`` is the directional derivative of ``M(q) qd`` along ``qd`` (central difference).
@@ -20,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
-from teleop_force.errors import ModelError
+from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.robot import LINK_PARAMETER_NAMES, RobotDescription
 
 _DIRECTIONAL_STEP = 1e-5
@@ -66,8 +70,16 @@ class BaseParameters:
 
     def __post_init__(self) -> None:
         n_full = len(self.full_names)
+        if self.independent.ndim != 1 or self.dependent.ndim != 1:
+            raise ModelError("base parameters: index sets must be flat")
         if self.independent.size + self.dependent.size != n_full:
             raise ModelError("base parameters: index sets do not partition the parameters")
+        every = np.sort(np.concatenate((self.independent, self.dependent)))
+        if not np.array_equal(every, np.arange(n_full)):
+            raise ModelError(
+                f"base parameters: independent and dependent indices must be 0..{n_full - 1}, "
+                "each once"
+            )
         if self.dependency.shape != (self.independent.size, self.dependent.size):
             raise ModelError("base parameters: dependency matrix has the wrong shape")
 
@@ -111,13 +123,37 @@ class BaseParameters:
 
     @classmethod
     def from_dict(cls, data: dict[str, object]) -> BaseParameters:
-        """Deserialise."""
-        independent = np.asarray(data["independent"], dtype=int)
-        dependent = np.asarray(data["dependent"], dtype=int)
-        dependency = np.asarray(data["dependency"], dtype=float).reshape(
-            independent.size, dependent.size
-        )
-        return cls(tuple(data["full_names"]), independent, dependent, dependency)  # type: ignore[arg-type]
+        """Deserialise; raise ModelFileError naming the field (``independent``...) if malformed.
+
+        The indices must be integers that split ``0..len(full_names)-1`` between
+        ``independent`` and ``dependent`` (each once), and ``dependency`` finite numbers of
+        shape ``(len(independent), len(dependent))``.
+        """
+        from teleop_force.friction.base import file_floats, file_indices
+
+        if not isinstance(data, dict):
+            raise ModelFileError(f"expected an object, got {type(data).__name__}")
+        for key in ("full_names", "independent", "dependent", "dependency"):
+            if key not in data:
+                raise ModelFileError("missing", column=key)
+        names = data["full_names"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ModelFileError("expected a list of names", column="full_names")
+        independent = file_indices(data["independent"], "independent", len(names))
+        dependent = file_indices(data["dependent"], "dependent", len(names))
+        dependency = file_floats(data["dependency"], "dependency")
+        if dependency.size == 0:
+            dependency = dependency.reshape(independent.size, dependent.size)
+        if dependency.shape != (independent.size, dependent.size):
+            raise ModelFileError(
+                f"expected {independent.size} rows of {dependent.size} numbers, "
+                f"got shape {dependency.shape}",
+                column="dependency",
+            )
+        try:
+            return cls(tuple(names), independent, dependent, dependency)
+        except ModelError as exc:
+            raise ModelFileError(str(exc), column="independent") from None
 
 
 class RigidBodyRegressor:
@@ -192,6 +228,7 @@ class RigidBodyRegressor:
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         n_samples, n = q.shape
+        n_model = self.model.nv
         cols = np.arange(self.n_parameters) if columns is None else np.asarray(columns)
         y_p = np.empty((n_samples, n, cols.size))
         y_w = np.empty_like(y_p)
@@ -217,8 +254,8 @@ class RigidBodyRegressor:
             vm = qdc @ t.T
             ahead = (qc + h[:, None] * qdc) @ t.T
             behind = (qc - h[:, None] * qdc) @ t.T
-            zero = np.zeros(n)
-            raw = np.empty((4, m * n, nl))
+            zero = np.zeros(n_model)
+            raw = np.empty((4, m * n_model, nl))
             qm_rows, vm_rows = list(qm), list(vm)
             # at rest (h = 0) ahead == behind: the difference is exactly 0
             for out, mdl, dat, positions, velocity, acceleration in (
@@ -234,7 +271,7 @@ class RigidBodyRegressor:
                     pairs = zip(positions, velocity, strict=True)
                     rows = [regressor(mdl, dat, a, b, zero) for a, b in pairs]
                 np.concatenate(rows, out=out)
-            raw = raw.reshape(4, m, n, nl)
+            raw = raw.reshape(4, m, n_model, nl)
             links = np.einsum("ij,bkjp->bkip", t.T, raw)
             mdot = (links[2] - links[3]) / np.where(moving, 2.0 * h, 1.0)[:, None, None]
             out_p = y_p[start:stop]

@@ -33,6 +33,7 @@ from teleop_force.identification import least_squares
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.model_fitting import PreparedRecording, prepare
+from teleop_force.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis
 from teleop_force.robot import RobotDescription
 
 
@@ -43,6 +44,7 @@ class ResidualOptions:
     folds: int = 5
     blocks_per_fold: int = 4
     min_rms_gain: float = 0.05
+    min_control_gain: float = 0.05
     min_fold_wins: float = 0.8
     max_effects: int = 6
     decimate: int = 5
@@ -57,6 +59,8 @@ class ResidualOptions:
             raise ConfigurationError("folds must be >= 3")
         if not 0 < self.min_rms_gain < 1:
             raise ConfigurationError("min_rms_gain must be in (0, 1)")
+        if not 0 <= self.min_control_gain < 1:
+            raise ConfigurationError("min_control_gain must be in [0, 1)")
         if self.friction not in ("cv", "coupled-cv", "wn"):
             raise ConfigurationError("residual friction must be cv, coupled-cv or wn")
         if self.decimate < 1:
@@ -96,6 +100,7 @@ class ResidualReport:
     samples: int
     history: tuple[dict[str, Any], ...] = field(default_factory=tuple)
     plots: dict[str, Any] = field(default_factory=dict)
+    rejected: tuple[dict[str, Any], ...] = field(default_factory=tuple)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object of ``teleop-force residual --json``."""
@@ -283,6 +288,29 @@ def _candidates(
     return specs
 
 
+def _velocity_controls(data: _Data, joint: int, covered: tuple[int, ...]) -> list[BasisSpec]:
+    """Friction-shaped stand-ins for what the friction model may still miss on ``joint``.
+
+    Velocities the wavelet network maps are not offered as effects; these shapes of them
+    (smooth in each covered velocity, alone and times ``sgn(qd_joint)``, and low-speed
+    Stribeck terms) only serve as a control: a candidate on another variable must still
+    lower the held-out error with them in the model, so that friction the network has not
+    learnt is not named after a variable that merely correlates with the velocities (on a
+    periodic trajectory, every variable does).
+    """
+    specs = []
+    for k in covered:
+        x = data.raw["qd"][:, k]
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        if hi - lo < 1e-3:
+            continue
+        specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "none", float(lo), float(hi), 8))
+        specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "sign", float(lo), float(hi), 8))
+    if joint in covered:
+        specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
+    return specs
+
+
 def _dominant_frequency(x: np.ndarray, residual: np.ndarray, span: float) -> float | None:
     """Spatial frequency of the strongest periodic component of ``residual`` over ``x``."""
     if span <= 0:
@@ -320,10 +348,19 @@ def trace_residual(
         columns, y = _joint_base(data, friction, j, offsets, network)
         designs.append(_Design(columns, y, data.folds, options.folds, options.ridge))
     covered = description.friction_inputs if network is not None else tuple(() for _ in range(n))
+    controls: list[_Design | None] = []
+    for j, design in enumerate(designs):
+        specs = _velocity_controls(data, j, covered[j])
+        if not specs:
+            controls.append(None)
+            continue
+        extra = np.concatenate([_filtered_columns(data, spec) for spec in specs] + [_nuisance_columns(data, j, description)], axis=1)
+        controls.append(_Design(np.concatenate((design.base, extra), axis=1), design.y, data.folds, options.folds, options.ridge))
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()
     accepted: list[TracedEffect] = []
     history: list[dict[str, Any]] = []
+    rejected: list[dict[str, Any]] = []
     plots: list[dict[str, Any]] = []
     for _ in range(options.max_effects):
         best: tuple[float, int, BasisSpec, np.ndarray, np.ndarray] | None = None
@@ -339,20 +376,27 @@ def trace_residual(
                 gain = 1.0 - np.sqrt(errors.sum() / max(base_errors.sum(), 1e-300))
                 wins = float(np.mean(errors < base_errors))
                 if gain >= options.min_rms_gain and wins >= options.min_fold_wins:
+                    control_gain = _control_gain(controls[j], cols)
+                    if control_gain < options.min_control_gain:
+                        rejected.append({"effect": spec.describe(), "gain": float(gain), "control_gain": control_gain})
+                        continue
                     score = gain
                     if best is None or score > best[0]:
-                        best = (score, j, spec, cols, errors)
+                        best = (score, j, spec, cols, errors, control_gain)
         if best is None:
             break
-        gain, j, spec, cols, errors = best
+        gain, j, spec, cols, errors, control_gain = best
         design = designs[j]
         base_errors = design.held_out_errors()
         explained = 1.0 - errors.sum() / max(base_errors.sum(), 1e-300)
         after_j = design.relative_rms(errors)
         accepted.append(TracedEffect(spec, float(explained), float(current[j]), after_j))
-        history.append({"effect": spec.describe(), "kind": spec.kind, "gain": float(gain)})
+        history.append({"effect": spec.describe(), "kind": spec.kind, "gain": float(gain), "control_gain": control_gain})
         plots.append(_plot_data(data, design, spec, cols))
         design.add(cols)
+        control = controls[j]
+        if control is not None:
+            control.add(cols)
         current[j] = after_j
     model = _final_model(
         prepared, description, base, friction, [e.spec for e in accepted], config, offsets, accepted,
@@ -361,8 +405,28 @@ def trace_residual(
     if network is not None:
         model = _with_network(model, prepared, description)
     return ResidualReport(
-        before, current, tuple(accepted), model, int(data.folds.size), tuple(history), {"effects": plots}
+        before, current, tuple(accepted), model, int(data.folds.size), tuple(history), {"effects": plots},
+        tuple(rejected),
     )
+
+
+def _nuisance_columns(data: _Data, joint: int, description: RobotDescription) -> np.ndarray:
+    """The rigid-body fit's nuisance friction terms of ``joint`` (coupled inputs included)."""
+    out = []
+    for item, idx in zip(data.prepared, data.rows, strict=True):
+        s = item.signals
+        phi, _ = nuisance_friction_basis(s.qd_rad_s, joint, description.friction_inputs, RigidBodyFitOptions())
+        out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
+    return np.concatenate(out)
+
+
+def _control_gain(control: _Design | None, cols: np.ndarray) -> float:
+    """Held-out RMS gain of ``cols`` over the design with the friction controls (1 without)."""
+    if control is None:
+        return 1.0
+    base_errors = control.held_out_errors()
+    errors = control.held_out_errors(cols)
+    return float(1.0 - np.sqrt(errors.sum() / max(base_errors.sum(), 1e-300)))
 
 
 def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]

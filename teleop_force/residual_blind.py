@@ -55,7 +55,7 @@ class BlindCase:
             variables.add("offset")
         joint_ok = first["joint"] == self.expected_joint
         cut = self.after[self.expected_joint - 1] < self.before[self.expected_joint - 1]
-        return joint_ok and bool(variables & set(self.expected_variables)) and cut
+        return bool(joint_ok and variables & set(self.expected_variables) and cut)
 
 
 def run_blind_tests(
@@ -82,6 +82,13 @@ def run_blind_tests(
             f" found {[f['description'] for f in found]}")
         cases.append(case)
     return cases
+
+
+def _json_default(value: Any) -> Any:
+    """NumPy scalars and arrays, and tuples of them, as JSON values."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return list(value)
 
 
 def write_blind_report(cases: list[BlindCase], folder: Path) -> Path:
@@ -112,5 +119,5 @@ def write_blind_report(cases: list[BlindCase], folder: Path) -> Path:
             f" {'PASS' if c.passed else 'FAIL'} |"
         )
     (folder / "blind.md").write_text("\n".join(lines) + "\n")
-    (folder / "blind.json").write_text(json.dumps([c.__dict__ | {"passed": c.passed} for c in cases], indent=1, default=list))
+    (folder / "blind.json").write_text(json.dumps([c.__dict__ | {"passed": c.passed} for c in cases], indent=1, default=_json_default))
     return folder / "blind.md"

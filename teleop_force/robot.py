@@ -1,9 +1,15 @@
 """Robot descriptions and rigid-body computations in motor coordinates.
 
-A :class:`RobotDescription` is a pinocchio serial-chain model in *model* coordinates plus a
-joint coupling matrix ``T`` with ``q_model = T @ q_motor``. Every public quantity of
-:class:`Robot` (angles, velocities, torques, matrices) is in *motor* coordinates, the ones the
-encoders read and the motors drive: ``tau_motor = T.T @ tau_model``.
+A :class:`RobotDescription` is a pinocchio model in *model* coordinates plus a joint coupling
+matrix ``T`` with ``q_model = T @ q_motor``. Every public quantity of :class:`Robot` (angles,
+velocities, torques, matrices) is in *motor* coordinates, the ones the encoders read and the
+motors drive: ``tau_motor = T.T @ tau_model`` (the virtual work of the two sides is equal).
+
+``T`` is square for a serial chain. A closed chain (a parallelogram) is a tree with more joints
+than motors: each extra joint's angle is a fixed linear combination of the motor angles, so
+``T`` has one row per model joint and one column per motor (``n_model x n``, full column
+rank) and the same two formulas hold, ``M_motor = T^T M T`` and so on (the closure is
+satisfied by construction, the constraint forces do no work).
 """
 
 from __future__ import annotations
@@ -41,7 +47,9 @@ class RobotDescription:
         model: Pinocchio model in model coordinates; ``None`` for a robot without rigid-body
             terms (friction and found effects only).
         n_joints: Number of actuated (motor) joints.
-        coupling: ``T`` with ``q_model = T @ q_motor`` (n x n).
+        coupling: ``T`` with ``q_model = T @ q_motor``: ``n x n`` for a serial chain,
+            ``n_model x n`` (``n_model >= n``, full column rank) for a closed chain written as
+            a tree with extra joints (``n_model = model.nv``).
         tip_frame: Name of the pinocchio frame where contact forces act.
         rotor_inertia_kgm2: Motor rotor inertias, diagonal in motor coordinates.
         springs: Torsional springs in motor coordinates (stiffness is identified).
@@ -67,13 +75,27 @@ class RobotDescription:
         if n < 1:
             raise ModelError(f"{self.name}: a robot needs at least one joint, got {n}")
         coupling = np.asarray(self.coupling, dtype=float)
-        if coupling.shape != (n, n):
+        if coupling.ndim != 2 or coupling.shape[1] != n or coupling.shape[0] < n:
             raise ModelError(f"{self.name}: coupling must be {n}x{n}, got {coupling.shape}")
-        if abs(np.linalg.det(coupling)) < 1e-9:
-            raise ModelError(f"{self.name}: coupling matrix is singular")
+        if not np.all(np.isfinite(coupling)):
+            raise ModelError(f"{self.name}: coupling matrix is not finite")
+        if coupling.shape[0] == n:
+            if abs(np.linalg.det(coupling)) < 1e-9:
+                raise ModelError(f"{self.name}: coupling matrix is singular")
+        elif np.linalg.svd(coupling, compute_uv=False)[-1] < 1e-9:
+            raise ModelError(f"{self.name}: coupling matrix does not have full column rank")
         object.__setattr__(self, "coupling", coupling)
-        if self.model is not None and self.model.nv != n:
-            raise ModelError(f"{self.name}: pinocchio model has nv={self.model.nv}, expected {n}")
+        if self.model is not None and self.model.nv != coupling.shape[0]:
+            if coupling.shape[0] == n:
+                raise ModelError(
+                    f"{self.name}: pinocchio model has nv={self.model.nv}, expected {n}"
+                )
+            raise ModelError(
+                f"{self.name}: pinocchio model has nv={self.model.nv}, the coupling has "
+                f"{coupling.shape[0]} rows (one per model joint)"
+            )
+        if self.model is None and coupling.shape[0] != n:
+            raise ModelError(f"{self.name}: coupling must be {n}x{n}, got {coupling.shape}")
         if self.model is not None and self.tip_frame is not None:
             if not self.model.existFrame(self.tip_frame):
                 raise ModelError(f"{self.name}: no frame named {self.tip_frame!r} in the model")
@@ -107,6 +129,16 @@ class RobotDescription:
     def has_rigid_body(self) -> bool:
         """Whether the description carries rigid-body (pinocchio) terms."""
         return self.model is not None
+
+    @property
+    def n_model(self) -> int:
+        """Number of model joints (``coupling`` rows): ``n_joints`` for a serial chain."""
+        return int(self.coupling.shape[0])
+
+    @property
+    def is_serial(self) -> bool:
+        """Whether the coupling is square (a serial chain, no extra closed-chain joints)."""
+        return self.n_model == self.n_joints
 
     @property
     def n_links(self) -> int:

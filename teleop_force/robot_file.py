@@ -39,6 +39,7 @@ unreadable file) naming the file and the field, never a raw pinocchio or parser 
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import tomllib
@@ -85,6 +86,19 @@ _DH_ROW_KEYS = {
 T = TypeVar("T")
 
 
+def _digits(value: object) -> int:
+    """Decimal digits of an int (without building its string, limited to 4300 digits)."""
+    return len(str(abs(value))) if abs(value) < 10**4000 else int(abs(value).bit_length() * 0.30103)
+
+
+def _shown(value: object) -> str:
+    """``repr`` of a field's value, short (a huge int or long string cannot flood the message)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
+        return f"an integer of {_digits(value)} digits"
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 def looks_like_robot_file(name: str) -> bool:
     """Whether a ``--robot`` value names a description file rather than a built-in robot."""
     return Path(name).suffix.lower() in SUFFIXES
@@ -101,14 +115,19 @@ class _Fields:
 
     def number(self, value: object, field: str) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(field, f"expected a number, got {value!r}")
-        if not np.isfinite(value):
+            raise self.error(field, f"expected a number, got {_shown(value)}")
+        try:
+            out = float(value)  # an int beyond float64 overflows here
+        except OverflowError:
+            problem = f"must be finite, got an integer of {_digits(value)} digits"
+            raise self.error(field, problem) from None
+        if not math.isfinite(out):
             raise self.error(field, f"must be finite, got {value!r}")
-        return float(value)
+        return out
 
     def vector(self, value: object, field: str, size: int | None = None) -> np.ndarray:
         if not isinstance(value, list):
-            raise self.error(field, f"expected a list of numbers, got {value!r}")
+            raise self.error(field, f"expected a list of numbers, got {_shown(value)}")
         out = np.array([self.number(v, f"{field}[{i}]") for i, v in enumerate(value)], dtype=float)
         if size is not None and out.size != size:
             raise self.error(field, f"expected {size} numbers, got {out.size}")
@@ -121,7 +140,7 @@ class _Fields:
 
     def string(self, value: object, field: str) -> str:
         if not isinstance(value, str) or not value:
-            raise self.error(field, f"expected a non-empty string, got {value!r}")
+            raise self.error(field, f"expected a non-empty string, got {_shown(value)}")
         return value
 
     def table(self, value: object, field: str) -> dict[str, Any]:
@@ -165,6 +184,9 @@ def _parse(path: Path) -> dict[str, Any]:
         raise DataError(f"not valid JSON: {exc.msg}", path=path, row=exc.lineno) from None
     except tomllib.TOMLDecodeError as exc:
         raise DataError(f"not valid TOML: {exc}", path=path) from None
+    except (ValueError, RecursionError) as exc:  # an int of > 4300 digits, deep nesting
+        kind = "JSON" if suffix == ".json" else "TOML"
+        raise DataError(f"not valid {kind}: {str(exc)[:120]}", path=path) from None
     if not isinstance(data, dict):
         raise DataError("a robot description must be a JSON object", path=path)
     return data
@@ -190,9 +212,9 @@ def load_robot_description(path: str | os.PathLike[str]) -> RobotDescription:
     f = _Fields(path)
     f.unknown(data, _TOP_KEYS, "")
     if data.get("format") != FILE_FORMAT:
-        raise f.error("format", f"expected {FILE_FORMAT!r}, got {data.get('format')!r}")
+        raise f.error("format", f"expected {FILE_FORMAT!r}, got {_shown(data.get('format'))}")
     if data.get("version") != FILE_VERSION:
-        raise f.error("version", f"expected {FILE_VERSION}, got {data.get('version')!r}")
+        raise f.error("version", f"expected {FILE_VERSION}, got {_shown(data.get('version'))}")
     if "name" not in data:
         raise f.error("name", "missing")
     f.string(data["name"], "name")
@@ -247,7 +269,7 @@ def load_robot_description(path: str | os.PathLike[str]) -> RobotDescription:
 
 def _joint_index(f: _Fields, value: object, field: str, n: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= n:
-        raise f.error(field, f"expected a joint number 1..{n}, got {value!r}")
+        raise f.error(field, f"expected a joint number 1..{n}, got {_shown(value)}")
     return value - 1
 
 
@@ -304,7 +326,7 @@ def _dh_model(f: _Fields, dh: dict[str, Any], gravity: np.ndarray, tip: str) -> 
     f.unknown(dh, {"rows", "tip_offset_m", "convention"}, "dh")
     convention = dh.get("convention", "standard")
     if convention != "standard":
-        raise f.error("dh.convention", f"only 'standard' DH is supported, got {convention!r}")
+        raise f.error("dh.convention", f"only 'standard' DH is supported, got {_shown(convention)}")
     rows_value = dh.get("rows")
     if not isinstance(rows_value, list) or not rows_value:
         raise f.error("dh.rows", "expected a non-empty list of rows")
@@ -319,7 +341,8 @@ def _dh_model(f: _Fields, dh: dict[str, Any], gravity: np.ndarray, tip: str) -> 
         joint_type = row.get("type", "revolute")
         if joint_type not in JOINT_TYPES:
             raise f.error(
-                f"{field}.type", f"expected one of {', '.join(JOINT_TYPES)}, got {joint_type!r}"
+                f"{field}.type",
+                f"expected one of {', '.join(JOINT_TYPES)}, got {_shown(joint_type)}",
             )
         mass = f.number(row.get("mass_kg", 0.0), f"{field}.mass_kg")
         com = f.vector(row.get("com_m", [0.0, 0.0, 0.0]), f"{field}.com_m", 3)

@@ -97,3 +97,21 @@ def test_helpers() -> None:
     assert percentiles([1.0, 2.0, 3.0], (50,)) == [2.0]
     peak = peak_rss_mb()
     assert peak is not None and peak > 1.0
+
+
+def test_only_selects_the_parts() -> None:
+    import argparse
+
+    from teleop_force.bench import add_bench_arguments, options_from_args
+    from teleop_force.errors import ConfigurationError
+
+    parser = argparse.ArgumentParser()
+    add_bench_arguments(parser)
+    only = options_from_args(parser.parse_args(["--only", "identification"]))
+    assert not (only.estimation or only.replay or only.messaging)
+    both = options_from_args(parser.parse_args(["--only", "estimation,replay", "--quick"]))
+    assert both.estimation and both.replay and not both.messaging and both.quick
+    everything = options_from_args(parser.parse_args([]))
+    assert everything.estimation and everything.replay and everything.messaging
+    with pytest.raises(ConfigurationError, match="--only"):
+        options_from_args(parser.parse_args(["--only", "identification,bogus"]))

@@ -88,3 +88,125 @@ def test_representative_parameters_keep_base_values(setup) -> None:
     beta = base.project(pi) * 1.1
     rep = base.representative(beta, pi)
     np.testing.assert_allclose(base.project(rep), beta, rtol=1e-12, atol=1e-15)
+
+
+# --------------------------------------------------------------------------- closed chains
+# A tree with more joints than motors (a parallelogram's closing link as an extra branch):
+# the coupling T is n_model x n_motor, q_model = T q_motor, tau_motor = T^T tau_model.
+
+
+def _closed_chain(seed: int = 7):
+    import pinocchio as pin
+
+    from teleop_force.robot import JointSpring, RobotDescription
+
+    pin.seed(seed)
+    model = pin.Model()
+    yaw = model.addJoint(0, pin.JointModelRZ(), pin.SE3.Identity(), "yaw")
+    shoulder = pin.SE3(pin.utils.rotate("x", np.pi / 2), np.array([0.0, 0.0, 0.1]))
+    upper = model.addJoint(yaw, pin.JointModelRZ(), shoulder, "upper")
+    def along_x(length: float) -> pin.SE3:
+        return pin.SE3(np.eye(3), np.array([length, 0.0, 0.0]))
+
+    fore = model.addJoint(upper, pin.JointModelRZ(), along_x(0.3), "fore")
+    back = model.addJoint(yaw, pin.JointModelRZ(), shoulder, "back")  # branch: absolute elbow
+    top = model.addJoint(back, pin.JointModelRZ(), along_x(0.1), "top")
+    for joint in (yaw, upper, fore, back, top):
+        model.appendBodyToJoint(joint, pin.Inertia.Random(), pin.SE3.Identity())
+    model.addFrame(pin.Frame("tip", fore, along_x(0.35), pin.FrameType.OP_FRAME))
+    # motors: yaw, upper arm angle, absolute elbow angle
+    coupling = np.array([[1, 0, 0], [0, 1, 0], [0, -1, 1], [0, 0, 1], [0, 1, -1]], dtype=float)
+    description = RobotDescription(
+        name="closed-chain",
+        model=model,
+        n_joints=3,
+        coupling=coupling,
+        tip_frame="tip",
+        rotor_inertia_kgm2=np.array([0.01, 0.02, 0.03]),
+        springs=(JointSpring(2, 0.4),),
+    )
+    return description, np.array([0.7])
+
+
+def _closed_states(seed: int, count: int = 60):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        yield rng.uniform(-1.0, 1.0, 3), rng.normal(0, 2, 3), rng.normal(0, 10, 3)
+
+
+def test_non_square_coupling_regressor_matches_rnea_through_t() -> None:
+    import pinocchio as pin
+
+    description, k = _closed_chain()
+    assert description.coupling.shape == (5, 3) and description.n_model == 5
+    assert not description.is_serial
+    t = description.coupling
+    model = description.model
+    data = model.createData()
+    regressor = RigidBodyRegressor(description)
+    pi = full_parameters(description, k)
+    for q, qd, qdd in _closed_states(11):
+        tau = t.T @ pin.rnea(model, data, t @ q, t @ qd, t @ qdd)
+        tau += description.rotor_inertia_kgm2 * qdd
+        tau[2] += k[0] * (q[2] - 0.4)
+        assert np.abs(regressor.standard(q, qd, qdd) @ pi - tau).max() < 1e-9 * _scale(tau)
+
+
+def test_non_square_coupling_momentum_form_matches_pinocchio() -> None:
+    import pinocchio as pin
+
+    description, k = _closed_chain()
+    t = description.coupling
+    model = description.model
+    data = model.createData()
+    regressor = RigidBodyRegressor(description)
+    robot = Robot(description)
+    pi = full_parameters(description, k)
+    for q, qd, qdd in _closed_states(12):
+        mass = pin.crba(model, data, t @ q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        p = t.T @ mass @ t @ qd + description.rotor_inertia_kgm2 * qd
+        assert np.abs(regressor.momentum(q, qd) @ pi - p).max() < 1e-9 * _scale(p)
+        assert np.abs(robot.momentum(q, qd) - p).max() < 1e-9 * _scale(p)
+        coriolis = t.T @ pin.computeCoriolisMatrix(model, data, t @ q, t @ qd) @ t
+        gravity = t.T @ pin.computeGeneralizedGravity(model, data, t @ q)
+        w = -coriolis.T @ qd + gravity + robot.spring_torque(q, k)
+        assert np.abs(regressor.coriolis_gravity(q, qd) @ pi - w).max() < 1e-9 * _scale(w)
+        tau = robot.inverse_dynamics(q, qd, qdd) + robot.spring_torque(q, k)
+        assert np.abs(regressor.standard(q, qd, qdd) @ pi - tau).max() < 1e-9 * _scale(tau)
+
+
+def test_non_square_coupling_batch_and_base_parameters() -> None:
+    description, k = _closed_chain()
+    regressor = RigidBodyRegressor(description)
+    base = regressor.find_base_parameters()
+    pi = full_parameters(description, k)
+    beta = base.project(pi)
+    rng = np.random.default_rng(13)
+    q = rng.uniform(-1.0, 1.0, size=(300, 3))
+    qd = rng.normal(0.0, 1.0, size=(300, 3))
+    qd[:3] = 0.0
+    y_p, y_w = regressor.momentum_form_batch(q, qd, base.independent, chunk=128)
+    for i in range(q.shape[0]):
+        p = regressor.momentum(q[i], qd[i]) @ pi
+        w = regressor.coriolis_gravity(q[i], qd[i]) @ pi
+        np.testing.assert_allclose(y_p[i] @ beta, p, rtol=0, atol=1e-9 * _scale(p))
+        np.testing.assert_allclose(y_w[i] @ beta, w, rtol=0, atol=1e-9 * _scale(w))
+
+
+def test_non_square_coupling_is_checked() -> None:
+    from dataclasses import replace
+
+    from teleop_force.errors import ModelError
+
+    description, _ = _closed_chain()
+    deficient = description.coupling.copy()
+    deficient[:, 2] = deficient[:, 1]
+    with pytest.raises(ModelError, match="full column rank"):
+        replace(description, coupling=deficient)
+    with pytest.raises(ModelError, match="one per model joint"):
+        replace(description, coupling=description.coupling[:4])
+    with pytest.raises(ModelError, match="coupling must be 3x3"):
+        replace(description, coupling=description.coupling.T)
+    with pytest.raises(ModelError, match="coupling must be 3x3"):
+        replace(description, model=None, coupling=description.coupling)

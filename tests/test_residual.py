@@ -89,3 +89,36 @@ def test_measured_dvrk_cable_sweep_meets_the_target() -> None:
     assert report.before[0] > 0.4  # CV + viscous + offset leaves about half unexplained
     assert report.after[0] <= 0.10
     assert "q1" in report.effects[0].spec.depends_on()
+
+
+def test_friction_controls_reject_a_velocity_function_in_disguise() -> None:
+    """A residual that is friction (a function of qd1) is not named after the angle q1.
+
+    The motion is a pure sinusoid, so q1 and qd1 determine each other on each half cycle and
+    a direction-modulated smooth function of q1 explains the friction on held-out blocks as
+    well as the friction shapes do: only the control can tell them apart.
+    """
+    from teleop_force.residual import _control_gain, _Design
+
+    rng = np.random.default_rng(3)
+    t = np.arange(20000) * 1e-3
+    folds = (np.arange(t.size) * 20 // t.size) % 5
+    q1 = np.sin(2 * np.pi * 0.5 * t)
+    qd1 = np.pi * np.cos(2 * np.pi * 0.5 * t)
+    friction = 0.02 * np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / 0.3)
+    y = friction + 1e-4 * rng.normal(size=t.size)
+    base = np.stack([np.ones_like(t), np.sign(qd1), qd1], axis=1)
+    control = _Design(np.concatenate([base, np.stack([np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / s) for s in (0.1, 0.3, 1.0)], axis=1)], axis=1), y, folds, 5, 1e-8)
+    disguised = np.stack([np.sign(qd1) * np.exp(-((q1 - c) / 0.3) ** 2) for c in np.linspace(-1, 1, 6)], axis=1)
+    plain = _Design(base, y, folds, 5, 1e-8)
+    plain_gain = 1 - np.sqrt(plain.held_out_errors(disguised).sum() / plain.held_out_errors().sum())
+    assert plain_gain > 0.2  # without the control it would be accepted
+    assert _control_gain(control, disguised) < 0.05
+    assert _control_gain(None, disguised) == 1.0
+
+
+def test_min_control_gain_is_validated() -> None:
+    from teleop_force.errors import ConfigurationError
+
+    with pytest.raises(ConfigurationError):
+        ResidualOptions(min_control_gain=1.0)

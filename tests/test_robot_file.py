@@ -249,3 +249,59 @@ def test_missing_file_and_wrong_suffix(tmp_path):
         load_robot_description(tmp_path / "none.toml")
     with pytest.raises(DataError):
         load_robot_description(_write(tmp_path, "arm.yaml", "x: 1"))
+
+
+# Finding R1 of the fuzzing (docs/reliability.md): an integer beyond float64 anywhere a number
+# is read was a raw TypeError from np.isfinite (an object array); now a ModelError naming the
+# field. Integers within float64 are numbers like any other.
+HUGE = "1" + "0" * 400  # 1e400: no float64
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json"])
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ("gravity_mps2 = [0.0, -9.81, 0.0]", f"gravity_mps2 = [{HUGE}, -9.81, 0]", "gravity_mps2[0]"),
+        ("mass_kg = 0.2", f"mass_kg = -{HUGE}", "dh.rows[1].mass_kg"),
+        ("q_max_rad = [1.0, 1.7, 1.2]", f"q_max_rad = [1.0, {HUGE}, 1.2]", "q_max_rad[1]"),
+        ("rest_angle_rad = 1.5", f"rest_angle_rad = {HUGE}", "springs[0].rest_angle_rad"),
+        ("[0, 0, 1e-4]]", f"[0, 0, {HUGE}]]", "dh.rows[2].inertia_kgm2[2][2]"),
+        ("tip_offset_m = [0.0, 0.0, 0.05]", f"tip_offset_m = [0.0, 0.0, {HUGE}]", "dh.tip_offset_m[2]"),
+    ],
+)
+def test_integer_beyond_float64_is_a_model_error_naming_the_field(tmp_path, suffix, old, new, field):
+    import tomllib
+
+    path = _dh_with(tmp_path, old, new)
+    if suffix == ".json":
+        data = tomllib.loads(path.read_text())
+        path = _write(tmp_path, "arm.json", json.dumps(data))
+    with pytest.raises(ModelError) as info:
+        load_robot_description(path)
+    message = str(info.value)
+    assert str(path) in message
+    assert f"'{field}'" in message
+    assert "401 digits" in message and len(message) < 400  # not the 401 digits themselves
+
+
+def test_integer_within_float64_is_read_as_a_float(tmp_path):
+    path = _dh_with(
+        tmp_path, "gravity_mps2 = [0.0, -9.81, 0.0]", f"gravity_mps2 = [{10**30}, -9.81, 0]"
+    )
+    desc = load_robot_description(path)  # was: TypeError "ufunc 'isfinite' not supported"
+    assert desc.model.gravity.linear[0] == 1e30
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        ("deep.json", "[" * 100_000 + "]" * 100_000),  # RecursionError in json
+        ("long.json", '{"version": ' + "9" * 5000 + "}"),  # ValueError: > 4300 digits
+        ("long.toml", "version = " + "9" * 5000 + "\n"),
+    ],
+)
+def test_pathological_json_and_toml_are_data_errors(tmp_path, name, text):
+    path = _write(tmp_path, name, text)
+    with pytest.raises(DataError) as info:
+        load_robot_description(path)
+    assert str(path) in str(info.value)

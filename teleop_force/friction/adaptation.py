@@ -42,14 +42,12 @@ since the previous sample; ``a_k = exp(-omega dt_k)``)::
     c[k+1]    = proj( c[k] - dt_k Gamma D^-1 Psi_L[k]^T e[k] )
     p_hat[k+1] = p_hat[k] + dt_k (A (p_hat[k] - p_L[k]) + u_L[k] - Psi_L[k] c[k])
 
-Speed: :meth:`LyapunovAdapter.run` processes blocks of ``structure_interval`` samples
-(default 10 = 10 ms) between structure checks. Within a block the wavelet values and their
-low-pass filter are computed for all samples at once, and the recursion above is solved
-*exactly* as one small lower-triangular linear system per joint (``c`` enters ``p_hat`` only
-through ``Psi_L c``, whose in-block change is a Gram matrix of the block's filtered basis).
-If the projection could become active inside a block (a conservative norm bound says so), the
-block is redone sample by sample with the projection at every sample. The result equals the
-sample-by-sample recursion of :meth:`LyapunovAdapter.step` up to rounding.
+Speed: :meth:`LyapunovAdapter.run` runs the recursion above sample by sample, with the
+projection at every sample, and the structure checks below, in one compiled loop
+(:func:`teleop_force.friction.kernels.adapt_samples`, numba); it hands over to Python only at
+a check that changes the active set (activating neighbours, removing wavelets), then resumes.
+:meth:`LyapunovAdapter.step` (one sample, the service's streaming path) does the same in
+NumPy; the two agree up to rounding (tests).
 
 Structure (Section III-D), checked every ``structure_interval`` samples, vectorised:
 
@@ -69,23 +67,29 @@ Structure (Section III-D), checked every ``structure_interval`` samples, vectori
   per network with vector operations; a structure change re-gathers the flat working arrays.
 
 Batch alternative: :func:`fit_batch` solves ridge-regularised least squares of the same
-filtered basis against a filtered friction-torque target, normal equations built in chunks.
+filtered basis against a filtered friction-torque target, normal equations built in chunks
+from every ``row_stride``-th filtered row (the basis is evaluated and filtered on every sample
+by the compiled :class:`teleop_force.friction.kernels.FilteredWavelets`), one thread per group
+of joints sharing a pool geometry, OpenBLAS on one thread (:mod:`.blas_threads`).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy.fft import irfftn, next_fast_len, rfftn
 from scipy.linalg import cho_factor, cho_solve
 from scipy.ndimage import uniform_filter
-from scipy.signal import fftconvolve
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError
+from teleop_force.friction.blas_threads import single_threaded_blas
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import WaveletNetwork, mexican_hat
 from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
@@ -206,14 +210,6 @@ def _regularised_intervals(t_s: np.ndarray) -> np.ndarray:
     return dt
 
 
-def _filter_matrix(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``y = T x + d0 y_prev`` for the recursion ``y[k] = a_k y[k-1] + (1 - a_k) x[k]``."""
-    log_cum = np.cumsum(np.log(a))
-    diff = log_cum[:, None] - log_cum[None, :]
-    t = np.tril(np.exp(np.minimum(diff, 0.0))) * (1.0 - a)[None, :]
-    return t, np.exp(log_cum)
-
-
 class LyapunovAdapter:
     """On-line Lyapunov adaptation (with thresholding) of a wavelet network's coefficients."""
 
@@ -252,6 +248,9 @@ class LyapunovAdapter:
         self._gain_joint = np.asarray(self.config.gamma) / np.asarray(self.config.inertia_kgm2)
         self._B = np.asarray(self.config.bound_b)
         self._omega = 2.0 * math.pi * self.config.cutoff_hz
+        self._joint_inputs = np.full((n, max(2, network.pool.dmax)), -1, dtype=np.int64)
+        for j, spec in enumerate(network.specs):
+            self._joint_inputs[j, : spec.d] = spec.inputs
         self._decay_tau_s = self.config.removal_time_s / REMOVAL_TIME_CONSTANTS
         self._mu = np.asarray([s.mu for s in network.specs])
         self._theta = np.asarray([s.theta for s in network.specs])
@@ -265,7 +264,6 @@ class LyapunovAdapter:
         self.included = np.zeros(n, dtype=np.int64)
         self.excluded = np.zeros(n, dtype=np.int64)
         self._coverage_buffer: list[np.ndarray] = []
-        self._block_cache: dict[bytes, tuple[np.ndarray, ...]] = {}
         self._size_history: list[tuple[float, tuple[int, ...]]] = []
         self._version = -1
         self.reset()
@@ -294,6 +292,28 @@ class LyapunovAdapter:
         idx = net.active_global_indices()
         self._idx = idx
         self._joint = pool.joint[idx]
+        self._amp = pool.amplitude[idx]
+        self._c = net.coefficients_at(idx)
+        self._psi_l = self._psi_l_pool[idx]
+        self._removal_left = self._removal_left_pool[idx]
+        self._decaying = np.isfinite(self._removal_left)
+        self._prev_abs = self._prev_abs_pool[idx]
+        self._protected = self._protected_pool[idx]
+        self._gain = self._gain_joint[self._joint] * ~self._decaying
+        self._step_arrays_version = -1  # built by _step_arrays when step() needs them
+        bounds = np.searchsorted(self._joint, np.arange(self._n + 1))
+        self._joint_start = bounds.astype(np.int64)
+        self._inv = pool.inv_scale[idx]
+        self._centre_scaled_t = np.ascontiguousarray(pool.centre_scaled[idx].T)
+        self._any_decay = bool(np.any(self._decaying))
+        self._version = net.structure_version
+
+    def _step_arrays(self) -> None:
+        """Build the block solver's arrays of the active set (:meth:`step`; not :meth:`run`)."""
+        if self._step_arrays_version == self._version:
+            return
+        pool = self.network.pool
+        idx = self._idx
         # -|x a0^-m - n b0|^2 / 2 = [qd^2, qd, 1] @ quad: one matmul for all wavelets
         n_ext = self._n + 1
         quad = np.zeros((2 * n_ext + 1, idx.size))
@@ -306,23 +326,11 @@ class LyapunovAdapter:
             np.add.at(quad, (n_ext + rows, cols), inv * cs)
             quad[2 * n_ext] -= 0.5 * cs * cs
         self._quad = quad
-        self._amp = pool.amplitude[idx]
         self._amp2 = 2.0 * self._amp
-        self._c = net.coefficients_at(idx)
-        self._psi_l = self._psi_l_pool[idx]
-        self._removal_left = self._removal_left_pool[idx]
-        self._decaying = np.isfinite(self._removal_left)
-        self._prev_abs = self._prev_abs_pool[idx]
-        self._protected = self._protected_pool[idx]
-        self._gain = self._gain_joint[self._joint] * ~self._decaying
         self._rows = np.arange(idx.size)
         self._onehot = np.zeros((idx.size, self._n))
         self._onehot[np.arange(idx.size), self._joint] = 1.0
-        self._amp_norm = np.sqrt((self._amp * self._amp) @ self._onehot)
-        bounds = np.searchsorted(self._joint, np.arange(self._n + 1))
-        self._slices = [slice(int(bounds[j]), int(bounds[j + 1])) for j in range(self._n)]
-        self._any_decay = bool(np.any(self._decaying))
-        self._version = net.structure_version
+        self._step_arrays_version = self._version
 
     def _store(self) -> None:
         """Scatter the flat working arrays back (coefficients into the network)."""
@@ -360,107 +368,42 @@ class LyapunovAdapter:
         out *= h  # amp (1 - r^2) exp(-r^2 / 2)
         return out
 
-    def _block_constants(self, dt: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Filter matrix, decay factors and ``dt_k dt_i`` (strictly lower) of a block."""
-        key = dt.tobytes()
-        cached = self._block_cache.get(key)
-        if cached is None:
-            a = np.exp(-self._omega * dt)
-            t_mat, d0 = _filter_matrix(a)
-            elapsed = np.concatenate(([0.0], np.cumsum(dt)[:-1]))
-            total = np.asarray([float(np.sum(dt))])
-            decay = np.exp(-elapsed / self._decay_tau_s)
-            decay_total = np.exp(-total / self._decay_tau_s)
-            dtdt = np.tril(dt[:, None] * dt[None, :], -1)
-            cached = (a, t_mat, d0, decay, decay_total, total, dtdt)
-            if len(self._block_cache) > 256:
-                self._block_cache.clear()
-            self._block_cache[key] = cached
-        return cached
-
-    # -- the recursion -------------------------------------------------------------------------
+    # -- the recursion, one sample (step; run uses the compiled kernels.adapt_samples) --------
 
     def _advance(
         self, qd: np.ndarray, p_l: np.ndarray, u_l: np.ndarray, dt: np.ndarray
     ) -> np.ndarray:
-        """Run samples ``k = 0..K-1`` with a fixed structure; return ``e`` (K, n)."""
-        k_len = qd.shape[0]
+        """Run one sample (arrays of one row) with a fixed structure; return ``e`` (1, n)."""
+        self._step_arrays()
         raw = self._raw(qd)
         if self._p_hat is None:
             self._p_hat = np.array(p_l[0], dtype=float)
             self._psi_l = raw[0].copy()
-        a, t_mat, d0, decay, decay_total, total, dtdt = self._block_constants(dt)
-        if k_len == 1:
-            psi_l = a[0] * self._psi_l + (1.0 - a[0]) * raw
-        else:
-            psi_l = t_mat @ raw
-            psi_l += d0[:, None] * self._psi_l
+        a = np.exp(-self._omega * dt)
+        psi_l = a[0] * self._psi_l + (1.0 - a[0]) * raw
         if self._any_decay:
             c_dec = self._c * self._decaying
             s = psi_l @ (self._onehot * (self._c - c_dec)[:, None])
-            s += (psi_l @ (self._onehot * c_dec[:, None])) * decay[:, None]
+            s += psi_l @ (self._onehot * c_dec[:, None])
         else:
             s = psi_l @ (self._onehot * self._c[:, None])
-        alpha = 1.0 + dt[:, None] * self._A
-        beta = dt[:, None] * (u_l - s - self._A * p_l)
         p_hat0 = self._p_hat
-        if k_len == 1:
-            e = p_l - p_hat0
-            p_next = alpha[0] * p_hat0 + beta[0]
-        else:
-            d_mat = np.empty((self._n, k_len, k_len))
-            if self._any_decay:
-                weighted = psi_l * self._gain
-                for j, sl in enumerate(self._slices):
-                    np.matmul(weighted[:, sl], psi_l[:, sl].T, out=d_mat[j])
-                d_mat *= dtdt
-            else:
-                for j, sl in enumerate(self._slices):
-                    np.matmul(psi_l[:, sl], psi_l[:, sl].T, out=d_mat[j])
-                d_mat *= dtdt * self._gain_joint[:, None, None]
-            system = np.zeros((self._n, k_len + 1, k_len + 1))
-            system[:, 1:, :k_len] = d_mat
-            rows = np.arange(k_len)
-            system[:, rows + 1, rows] = -alpha.T
-            diag = np.arange(k_len + 1)
-            system[:, diag, diag] = 1.0
-            rhs = np.empty((self._n, k_len + 1))
-            rhs[:, 0] = p_hat0
-            rhs[:, 1:] = beta.T + np.einsum("jki,ij->jk", d_mat, p_l)
-            y = np.linalg.solve(system, rhs[..., None])[..., 0].T
-            e = p_l - y[:k_len]
-            p_next = y[k_len]
-            # ||c_j|| inside the block is at most ||c_j(0)|| + gain_j sum dt_k |e_k| ||psi_k||_j;
-            # redo the block sample by sample if that could reach the projection radius
-            c0 = np.sqrt((self._c * self._c) @ self._onehot)
-            spread = self._gain_joint * np.sum(dt[:, None] * np.abs(e), axis=0)
-            if np.any(c0 + spread * self._amp_norm > self._B):
-                psi_norm = np.sqrt((psi_l * psi_l) @ self._onehot)
-                reach = c0 + self._gain_joint * np.sum(dt[:, None] * np.abs(e) * psi_norm, 0)
-                if np.any(reach > self._B):
-                    return np.concatenate(
-                        [
-                            self._advance(
-                                qd[i : i + 1], p_l[i : i + 1], u_l[i : i + 1], dt[i : i + 1]
-                            )
-                            for i in range(k_len)
-                        ]
-                    )
-        projected = psi_l.T @ (dt[:, None] * e)  # (P, n): sum_k psi_k dt_k e_k
+        e = p_l - p_hat0
+        p_next = (1.0 + dt[0] * self._A) * p_hat0 + dt[0] * (u_l[0] - s[0] - self._A * p_l[0])
+        projected = psi_l.T @ (dt[:, None] * e)  # (P, n): psi dt e
         delta = projected[self._rows, self._joint]
         delta *= -self._gain
         if self._any_decay:
-            delta += c_dec * (decay_total[0] - 1.0)
+            delta += c_dec * (np.exp(-dt[:1] / self._decay_tau_s)[0] - 1.0)
         c_new = self._c + delta
-        if k_len == 1:
-            norms = np.sqrt((c_new * c_new) @ self._onehot)
-            if np.any(norms > self._B):
-                scale = np.minimum(1.0, self._B / np.maximum(norms, 1e-300))
-                c_new *= scale[self._joint]
+        norms = np.sqrt((c_new * c_new) @ self._onehot)
+        if np.any(norms > self._B):
+            scale = np.minimum(1.0, self._B / np.maximum(norms, 1e-300))
+            c_new *= scale[self._joint]
         self._c = c_new
         self._psi_l = psi_l[-1].copy()
         self._p_hat = p_next
-        self._time_since_check += float(total[0])
+        self._time_since_check += float(dt[0])
         return e
 
     def _record_sizes(self, t_s: float) -> None:
@@ -497,8 +440,11 @@ class LyapunovAdapter:
             self._decaying = self._decaying | newly
             self._gain[newly] = 0.0
             self._any_decay = True
-        if not (np.any(done) or np.any(trigger)):
-            return
+        if np.any(done) or np.any(trigger):
+            self._change_structure(done, trigger, qd_now)
+
+    def _change_structure(self, done: np.ndarray, trigger: np.ndarray, qd_now: np.ndarray) -> None:
+        """Remove the ``done`` wavelets, add the neighbours of the ``trigger`` ones (masks)."""
         net = self.network
         self._c[done] = 0.0
         self._store()
@@ -582,6 +528,8 @@ class LyapunovAdapter:
         qd_arr, p_arr, u_arr = arrays
         if reset:
             self.reset()
+        from teleop_force.friction.kernels import adapt_samples  # numba: imported when used
+
         start_wall = time.perf_counter()
         included0, excluded0 = self.included.copy(), self.excluded.copy()
         self._size_history = []
@@ -589,19 +537,35 @@ class LyapunovAdapter:
         self._sync_in()
         if self.track_coverage and self.network.coverage is not None:
             self.network.coverage.add(qd_arr)
+        if self._coverage_buffer:
+            self._flush_coverage()
         errors = np.empty((n_samples, self._n))
-        interval = self.config.structure_interval
+        # the recursion and the threshold checks run compiled; Python takes over at the checks
+        # that change the active set (neighbours, removal) and then resumes
+        counters = np.array(
+            [self._since_check, self._time_since_check, float(self._p_hat is not None), 0.0]
+        )
+        p_hat = np.zeros(self._n) if self._p_hat is None else self._p_hat.copy()
         start = 0
         while start < n_samples:
-            stop = min(start + interval - self._since_check, n_samples)
-            errors[start:stop] = self._advance(
-                qd_arr[start:stop], p_arr[start:stop], u_arr[start:stop], dt[start:stop]
-            )
-            self._since_check += stop - start
-            if self._since_check >= interval:
-                self._update_structure(qd_arr[stop - 1])
-                self._record_sizes(float(t_arr[stop - 1]))
-            start = stop
+            done = np.zeros(self._idx.size, dtype=bool)
+            trigger = np.zeros(self._idx.size, dtype=bool)
+            start = adapt_samples(
+                qd_arr, p_arr, u_arr, dt, start, errors, self._inv, self._centre_scaled_t,
+                self._joint_inputs, self._amp, self._joint_start, self._protected, self._c,
+                self._psi_l, self._gain, self._decaying, self._removal_left, self._prev_abs,
+                self._A, self._B, self._mu, self._theta, self._omega, self._decay_tau_s,
+                self.config.removal_time_s, self.config.structure_interval,
+                self.config.update_structure, counters, p_hat, done, trigger,
+            )  # fmt: skip
+            self._since_check = int(counters[0])
+            self._time_since_check = float(counters[1])
+            self._p_hat = p_hat.copy() if counters[2] else None
+            self._any_decay = bool(np.any(self._decaying))
+            if counters[3]:
+                counters[3] = 0.0
+                self._change_structure(done, trigger, qd_arr[start - 1])
+                self._record_sizes(float(t_arr[start - 1]))
         self.network.set_coefficients_at(self._idx, self._c)
         self._record_sizes(float(t_arr[-1]))
         wall = time.perf_counter() - start_wall
@@ -652,25 +616,6 @@ class BatchFitResult:
             raise ConfigurationError("BatchFitResult: per-joint fields differ in length")
 
 
-def _lowpass_rows(x: np.ndarray, a: np.ndarray, y_prev: np.ndarray, block: int = 32) -> np.ndarray:
-    """Filter the rows of ``x`` (L, P) with per-row poles ``a`` from state ``y_prev`` (P,)."""
-    out = np.empty_like(x)
-    uniform = bool(np.ptp(a) == 0.0)
-    cached: tuple[np.ndarray, np.ndarray] | None = None
-    for s in range(0, x.shape[0], block):
-        ab = a[s : s + block]
-        if uniform and cached is not None and cached[0].shape[0] == ab.size:
-            t_mat, d0 = cached
-        else:
-            t_mat, d0 = _filter_matrix(ab)
-            cached = (t_mat, d0)
-        yb = t_mat @ x[s : s + block]
-        yb += d0[:, None] * y_prev[None, :]
-        out[s : s + block] = yb
-        y_prev = yb[-1]
-    return out
-
-
 def filtered_basis_normal_equations(
     network: WaveletNetwork,
     joint: int,
@@ -685,33 +630,43 @@ def filtered_basis_normal_equations(
     """``(G, b, yy, rows)`` of the low-pass filtered wavelets ``indices`` against ``targets``.
 
     ``G = Psi_L^T Psi_L``, ``b = Psi_L^T Y``, ``yy = sum Y^2`` per column of ``targets`` (N, r),
-    over every ``row_stride``-th sample. ``Psi_L`` equals ``lowpass_batch(basis, t_s)``; it is
-    built ``chunk_samples`` rows at a time with the filter state carried over.
+    over every ``row_stride``-th sample (samples 0, ``row_stride``, ...). ``Psi_L`` equals
+    ``lowpass_batch(basis, t_s)``: the wavelets are evaluated and filtered on *every* sample
+    by the compiled :class:`~teleop_force.friction.kernels.FilteredWavelets` (to ~1e-15
+    relative, see there), ``chunk_samples`` samples at a time with the filter state carried
+    over; only the kept rows enter the products.
     """
+    from teleop_force.friction.kernels import FilteredWavelets  # numba: imported when used
+
     dt = _regularised_intervals(t_s)
     a = np.exp(-2.0 * math.pi * cutoff_hz * dt)
+    a[0] = 0.0  # the filter starts at the first value, as lowpass_batch
     indices = np.asarray(indices, dtype=np.int64)
+    pool = network.pool
+    spec = network.specs[joint]
+    x = np.ascontiguousarray(np.asarray(qd, dtype=float)[:, list(spec.inputs)])
+    wavelets = FilteredWavelets(
+        pool.centre_scaled[indices, : spec.d], pool.inv_scale[indices], pool.amplitude[indices]
+    )
     p = indices.size
     gram = np.zeros((p, p))
     rhs = np.zeros((p, targets.shape[1]))
     yy = np.zeros(targets.shape[1])
+    keep_all = np.arange(0, x.shape[0], row_stride, dtype=np.int64)
+    buffer = np.empty((min(keep_all.size, -(-chunk_samples // row_stride)), p))
     rows = 0
-    y_prev: np.ndarray | None = None
-    for start in range(0, qd.shape[0], chunk_samples):
-        stop = min(start + chunk_samples, qd.shape[0])
-        raw = network.basis_at(joint, qd[start:stop], indices)
-        if y_prev is None:
-            y_prev = raw[0].copy()
-        filt = _lowpass_rows(raw, a[start:stop], y_prev)
-        y_prev = filt[-1].copy()
-        first = (-start) % row_stride
-        sel = filt[first::row_stride]
-        tgt = targets[start + first : stop : row_stride]
+    for start in range(0, x.shape[0], chunk_samples):
+        stop = min(start + chunk_samples, x.shape[0])
+        keep = keep_all[np.searchsorted(keep_all, start) : np.searchsorted(keep_all, stop)]
+        sel = wavelets.rows(x[start:stop], a[start:stop], keep - start, buffer)
+        tgt = targets[keep]
         gram += sel.T @ sel
         rhs += sel.T @ tgt
         yy += np.sum(tgt * tgt, axis=0)
         rows += sel.shape[0]
-    return gram, rhs, yy, rows
+    # the kernel's columns are sorted (wavelets.order): back to the order of ``indices``
+    back = np.argsort(wavelets.order)
+    return gram[np.ix_(back, back)], rhs[back], yy, rows
 
 
 def wavelet_visits(network: WaveletNetwork, joint: int, qd: np.ndarray) -> np.ndarray:
@@ -755,23 +710,70 @@ def wavelet_scores(
     has zero mean only over a fully visited support), i.e. the squared-error reduction of
     fitting ``k`` alone to the locally de-meaned target. Computed with FFT convolutions.
     """
+    y = np.asarray(target, dtype=float).reshape(-1, 1)
+    return wavelet_scores_of_targets(network, joint, qd, y)[0]
+
+
+class _SameConvolution:
+    """``scipy.signal.fftconvolve(a, kernel, mode="same")`` for one pair of shapes, reusable.
+
+    The same steps as SciPy's (``rfftn`` at the next fast length of the full size, product,
+    ``irfftn``, centred slice), so the values are the same bit for bit; a transform computed
+    once serves every convolution that uses that array.
+    """
+
+    def __init__(self, shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> None:
+        self.shape = shape
+        self.full = [a + b - 1 for a, b in zip(shape, kernel_shape, strict=True)]
+        self.fshape = [next_fast_len(n, True) for n in self.full]
+        self.axes = list(range(len(shape)))
+
+    def transform(self, a: np.ndarray) -> np.ndarray:
+        return rfftn(a, self.fshape, axes=self.axes)
+
+    def convolve(self, spectrum: np.ndarray, kernel_spectrum: np.ndarray) -> np.ndarray:
+        full = irfftn(spectrum * kernel_spectrum, self.fshape, axes=self.axes)
+        full = full[tuple(slice(n) for n in self.full)]
+        start = [(f - s) // 2 for f, s in zip(full.shape, self.shape, strict=True)]
+        centred = tuple(slice(a, a + s) for a, s in zip(start, self.shape, strict=True))
+        return full[centred].copy()
+
+
+def wavelet_scores_of_targets(
+    network: WaveletNetwork, joint: int, qd: np.ndarray, targets: np.ndarray
+) -> np.ndarray:
+    """:func:`wavelet_scores` of every column of ``targets`` (N, r) -> (r, K_j).
+
+    The sample counts and their convolutions are computed once for all targets (the Omni's
+    joints 2 and 3 read the same velocities); the values equal ``wavelet_scores`` per column.
+    """
+    targets = np.asarray(targets, dtype=float).reshape(np.shape(qd)[0], -1)
+    finite = np.isfinite(targets)
+    if not np.all(finite) and targets.shape[1] > 1:
+        # the counts depend on which samples are finite: one target at a time
+        return np.concatenate(
+            [wavelet_scores_of_targets(network, joint, qd, targets[:, [c]]) for c in
+             range(targets.shape[1])]
+        )  # fmt: skip
     pool = network.pool
     spec = network.specs[joint]
     sl = pool.joint_slice(joint)
     x = np.asarray(qd, dtype=float)[:, list(spec.inputs)]
-    y = np.asarray(target, dtype=float).reshape(-1)
     h = pool.a0**spec.m_min * pool.b0
     pad = math.ceil(pool.a0**spec.m_max * pool.b0 / h) + 1
     lo = np.rint(np.asarray(spec.x_min_rad_s) / h).astype(np.int64) - pad
     hi = np.rint(np.asarray(spec.x_max_rad_s) / h).astype(np.int64) + pad
     shape = tuple(int(v) for v in hi - lo + 1)
     cell = np.rint(x / h).astype(np.int64) - lo
-    inside = np.all((cell >= 0) & (cell < np.asarray(shape)), axis=1) & np.isfinite(y)
+    inside = np.all((cell >= 0) & (cell < np.asarray(shape)), axis=1) & np.all(finite, axis=1)
     flat = np.ravel_multi_index(tuple(cell[inside].T), shape)
     size = int(np.prod(shape))
     w = np.bincount(flat, minlength=size).reshape(shape).astype(float)
-    wf = np.bincount(flat, weights=y[inside], minlength=size).reshape(shape)
-    scores = np.zeros(pool.joint_size(joint))
+    wfs = [
+        np.bincount(flat, weights=targets[inside, c], minlength=size).reshape(shape)
+        for c in range(targets.shape[1])
+    ]
+    scores = np.zeros((targets.shape[1], pool.joint_size(joint)))
     for m in range(spec.m_max, spec.m_min - 1, -1):
         scale = pool.a0**m
         radius = math.ceil(4.0 * scale / h)
@@ -780,21 +782,26 @@ def wavelet_scores(
         kernel_shape = (2 * radius + 1,) * spec.d
         psi = (pool.a0 ** (-spec.d * m / 2.0) * mexican_hat(r)).reshape(kernel_shape)
         gauss = np.exp(-0.5 * np.sum(r * r, axis=1)).reshape(kernel_shape)
-        conv_a = fftconvolve(wf, psi, mode="same")
-        conv_b = fftconvolve(w, psi, mode="same")
-        conv_gn = fftconvolve(w, gauss, mode="same")
-        conv_gf = fftconvolve(wf, gauss, mode="same")
-        conv_q = fftconvolve(w, psi * psi, mode="same")
-        local = np.divide(conv_gf, conv_gn, out=np.zeros(shape), where=conv_gn > 1e-9)
-        detail = conv_a - conv_b * local
-        score = np.divide(detail**2, conv_q, out=np.zeros(shape), where=conv_q > 1e-12)
+        conv = _SameConvolution(shape, kernel_shape)
+        psi_s, gauss_s, psi2_s = (conv.transform(k) for k in (psi, gauss, psi * psi))
+        w_s = conv.transform(w)
+        conv_b = conv.convolve(w_s, psi_s)
+        conv_gn = conv.convolve(w_s, gauss_s)
+        conv_q = conv.convolve(w_s, psi2_s)
         members = np.flatnonzero(pool.m[sl] == m)
         centres = pool.centre[sl][members, : spec.d]
         c_cell = np.rint(centres / h).astype(np.int64) - lo
         ok = np.all((c_cell >= 0) & (c_cell < np.asarray(shape)), axis=1)
-        vals = np.zeros(members.size)
-        vals[ok] = score[tuple(c_cell[ok].T)]
-        scores[members] = np.maximum(vals, 0.0)
+        for c, wf in enumerate(wfs):
+            wf_s = conv.transform(wf)
+            conv_a = conv.convolve(wf_s, psi_s)
+            conv_gf = conv.convolve(wf_s, gauss_s)
+            local = np.divide(conv_gf, conv_gn, out=np.zeros(shape), where=conv_gn > 1e-9)
+            detail = conv_a - conv_b * local
+            score = np.divide(detail**2, conv_q, out=np.zeros(shape), where=conv_q > 1e-12)
+            vals = np.zeros(members.size)
+            vals[ok] = score[tuple(c_cell[ok].T)]
+            scores[c, members] = np.maximum(vals, 0.0)
     return scores
 
 
@@ -876,6 +883,13 @@ def fit_batch(
     network's active sets and coefficients are replaced; with ``fit_fallback`` its coupled-CV
     fallback is fitted to the same target; with ``update_coverage`` the samples are counted
     into its coverage map.
+
+    ``row_stride`` > 1 builds the normal equations from every ``row_stride``-th row of the
+    filtered basis (the basis is still evaluated and filtered on every sample); ``rms_nm`` and
+    ``relative_rms`` are then over those rows. The identification pipeline uses
+    :func:`teleop_force.wavelet_training.batch_row_stride` (3 at 1 kHz and 8 Hz). Groups of
+    joints with the same pool geometry are fitted in parallel threads, with OpenBLAS on one
+    thread (:func:`~teleop_force.friction.blas_threads.single_threaded_blas`).
     """
     start_wall = time.perf_counter()
     qd = np.asarray(qd, dtype=float)
@@ -901,56 +915,78 @@ def fit_batch(
     groups: dict[tuple[object, ...], list[int]] = {}
     for j in range(n):
         groups.setdefault(geometry(j), []).append(j)
-    local: dict[int, np.ndarray] = {}
-    for members in groups.values():
+
+    def candidates_of(members: list[int]) -> dict[int, np.ndarray]:
+        """Local candidate indices of joints sharing one pool geometry."""
         j0 = members[0]
-        off = int(pool.joint_offsets[j0])
         if wavelets == "active":
-            for j in members:
-                local[j] = network.active_indices(j)
-            continue
+            return {j: network.active_indices(j) for j in members}
+        off = int(pool.joint_offsets[j0])
         visited = np.flatnonzero(wavelet_visits(network, j0, qd) >= min_visits)
         if visited.size <= max_wavelets_per_joint:
             chosen = visited
         else:
             total = np.zeros(pool.joint_size(j0))
-            for j in members:
-                sc = wavelet_scores(network, j, qd, target_L[:, j])
+            for sc in wavelet_scores_of_targets(network, j0, qd, target_L[:, members]):
                 total += sc / max(float(sc.max()), 1e-300)
             coarse = visited[pool.m[off + visited] == network.specs[j0].m_max]
             rest = np.setdiff1d(visited, coarse)
             budget = max(0, max_wavelets_per_joint - coarse.size)
             best = rest[np.argsort(-total[rest], kind="stable")[:budget]]
             chosen = np.sort(np.concatenate((coarse, best)))
-        for j in members:
-            local[j] = chosen
-    candidates = [len(local[j]) for j in range(n)]
+        return dict.fromkeys(members, chosen)
+
+    FitOfJoint = tuple[int, int, np.ndarray, np.ndarray, float, float]
+
+    def fit_group(members: list[int]) -> list[FitOfJoint]:
+        """Candidates and ridge fits of joints sharing one pool geometry.
+
+        Returns ``(joint, candidates, global indices kept, coefficients, rms, relative rms)``.
+        """
+        out = []
+        with single_threaded_blas():
+            local = candidates_of(members)
+            done: set[int] = set()
+            for j in members:
+                if j in done:
+                    continue
+                # joints with the same candidates share one Gram matrix
+                same = [i for i in members if np.array_equal(local[i], local[j])]
+                done.update(same)
+                offset = int(pool.joint_offsets[j])
+                gram, rhs, yy, rows = filtered_basis_normal_equations(
+                    network, j, local[j] + offset, t_arr, qd, target_L[:, same],
+                    cutoff_hz, row_stride, chunk_samples,
+                )  # fmt: skip
+                amp = pool.amplitude[local[j] + offset]
+                for col, i in enumerate(same):
+                    keep, coef = _ridge_with_pruning(gram, rhs[:, col], amp, ridge, prune_tol_nm)
+                    gk = gram[np.ix_(keep, keep)]
+                    sse = float(yy[col] - 2.0 * coef @ rhs[keep, col] + coef @ gk @ coef)
+                    rms_i = math.sqrt(max(sse, 0.0) / max(rows, 1))
+                    rel_i = rms_i / max(math.sqrt(float(yy[col]) / max(rows, 1)), 1e-300)
+                    kept = local[i][keep] + int(pool.joint_offsets[i])
+                    out.append((i, len(local[i]), kept, coef, rms_i, rel_i))
+        return out
+
+    # the joint groups are independent: one thread each (the kernel and BLAS release the GIL)
+    tasks = list(groups.values())
+    workers = max(1, min(len(tasks), os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fit_batch") as executor:
+        futures = [executor.submit(fit_group, members) for members in tasks]
+        if update_coverage and network.coverage is not None:
+            network.coverage.add(qd)
+        results = [item for future in futures for item in future.result()]
+    candidates = [0] * n
     sizes = [0] * n
     rms = np.zeros(n)
     rel = np.zeros(n)
-    solved: set[int] = set()
-    for j in range(n):
-        if j in solved:
-            continue
-        # joints with the same pool geometry and candidates share one Gram matrix
-        same = [i for i in groups[geometry(j)] if np.array_equal(local[i], local[j])]
-        offset = int(pool.joint_offsets[j])
-        gram, rhs, yy, rows = filtered_basis_normal_equations(
-            network, j, local[j] + offset, t_arr, qd, target_L[:, same],
-            cutoff_hz, row_stride, chunk_samples,
-        )  # fmt: skip
-        amp = pool.amplitude[local[j] + offset]
-        for col, i in enumerate(same):
-            keep, coef = _ridge_with_pruning(gram, rhs[:, col], amp, ridge, prune_tol_nm)
-            gk = gram[np.ix_(keep, keep)]
-            sse = float(yy[col] - 2.0 * coef @ rhs[keep, col] + coef @ gk @ coef)
-            rms[i] = math.sqrt(max(sse, 0.0) / max(rows, 1))
-            rel[i] = rms[i] / max(math.sqrt(float(yy[col]) / max(rows, 1)), 1e-300)
-            network.set_structure(i, local[i][keep] + int(pool.joint_offsets[i]), coef)
-            sizes[i] = int(keep.size)
-            solved.add(i)
-    if update_coverage and network.coverage is not None:
-        network.coverage.add(qd)
+    for i, n_candidates, kept, coef, rms_i, rel_i in sorted(results, key=lambda r: r[0]):
+        network.set_structure(i, kept, coef)
+        candidates[i] = n_candidates
+        sizes[i] = int(kept.size)
+        rms[i] = rms_i
+        rel[i] = rel_i
     if fit_fallback:
         network.fallback = fit_coupled_cv(
             t_arr, qd, target_L, [s.inputs for s in network.specs], cutoff_hz

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
-from teleop_force.errors import ModelError
-from teleop_force.friction.base import FrictionModel
+from teleop_force.errors import ModelError, ModelFileError
+from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
 
 
 class CoulombViscous(FrictionModel):
@@ -34,8 +35,9 @@ class CoulombViscous(FrictionModel):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:
-        """Deserialise what :meth:`to_dict` wrote."""
-        return cls(int(data["n_joints"]), np.asarray(data["parameters"], dtype=float))
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
+        n_joints, parameters = _common_fields(data)
+        return _built(lambda: cls(n_joints, parameters))
 
 
 class CoupledCoulombViscous(FrictionModel):
@@ -58,6 +60,9 @@ class CoupledCoulombViscous(FrictionModel):
         if len(friction_inputs) != n_joints:
             raise ModelError("friction_inputs needs one entry per joint")
         self.friction_inputs = tuple(tuple(int(k) for k in s) for s in friction_inputs)
+        for j, inputs in enumerate(self.friction_inputs):
+            if any(not 0 <= k < n_joints for k in inputs):
+                raise ModelError(f"friction_inputs[{j}]: joint index outside 0..{n_joints - 1}")
         self._pairs = tuple(
             tuple((min(j, k), max(j, k)) for k in s if k != j)
             for j, s in enumerate(self.friction_inputs)
@@ -95,6 +100,39 @@ class CoupledCoulombViscous(FrictionModel):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoupledCoulombViscous:
-        """Deserialise what :meth:`to_dict` wrote."""
-        inputs = tuple(tuple(int(k) for k in s) for s in data["friction_inputs"])
-        return cls(int(data["n_joints"]), inputs, np.asarray(data["parameters"], dtype=float))
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
+        n_joints, parameters = _common_fields(data)
+        value = data.get("friction_inputs")
+        if not isinstance(value, list) or len(value) != n_joints:
+            raise ModelFileError(
+                f"expected {n_joints} lists of joint indices", column="friction_inputs"
+            )
+        inputs = []
+        for j, entry in enumerate(value):
+            field = f"friction_inputs[{j}]"
+            if not isinstance(entry, list):
+                raise ModelFileError("expected a list of joint indices", column=field)
+            inputs.append(tuple(file_int(k, field, 0, n_joints - 1) for k in entry))
+        return _built(lambda: cls(n_joints, tuple(inputs), parameters))
+
+
+def _common_fields(data: object) -> tuple[int, np.ndarray]:
+    """``n_joints`` and finite ``parameters`` of a CV model's dict (ModelFileError naming them)."""
+    if not isinstance(data, dict):
+        raise ModelFileError(f"expected an object, got {type(data).__name__}")
+    if "n_joints" not in data or "parameters" not in data:
+        missing = "n_joints" if "n_joints" not in data else "parameters"
+        raise ModelFileError("missing", column=missing)
+    n_joints = file_int(data["n_joints"], "n_joints", 1, MAX_JOINTS)
+    parameters = file_floats(data["parameters"], "parameters")
+    if parameters.ndim != 1:
+        raise ModelFileError("expected a flat list of numbers", column="parameters")
+    return n_joints, parameters
+
+
+def _built(build: Callable[[], FrictionModel]) -> Any:
+    """``build()``, its ModelError (a count that does not match...) as ModelFileError."""
+    try:
+        return build()
+    except ModelError as exc:
+        raise ModelFileError(str(exc), column="parameters") from None

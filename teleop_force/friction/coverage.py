@@ -28,6 +28,11 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 
 from teleop_force.errors import ConfigurationError, DataError, ModelFileError
 
+#: Most cells one joint's grid may have (a bad region or cell size cannot allocate gigabytes).
+MAX_GRID_CELLS = 1_000_000
+#: Widest smoothing, in cells (the Gaussian's cost grows with it: 1e6 took 90 s per grid).
+MAX_SMOOTHING_CELLS = 50.0
+
 
 @dataclass(frozen=True)
 class CoverageConfig:
@@ -49,12 +54,25 @@ class CoverageConfig:
     trained_density: float = 20.0
 
     def __post_init__(self) -> None:
+        for name in (
+            "cell_size_1d_rad_s", "cells_per_axis_nd", "smoothing_cells", "untrained_density",
+            "trained_density",
+        ):  # fmt: skip
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+                raise ConfigurationError(f"{name} must be a number, got {type(value).__name__}")
+            try:
+                finite = math.isfinite(value)
+            except OverflowError:  # an int beyond float64
+                finite = False
+            if not finite:
+                raise ConfigurationError(f"{name} must be finite and within float64")
         if not self.cell_size_1d_rad_s > 0.0:
             raise ConfigurationError("cell_size_1d_rad_s must be > 0")
         if int(self.cells_per_axis_nd) != self.cells_per_axis_nd or self.cells_per_axis_nd < 2:
             raise ConfigurationError("cells_per_axis_nd must be an integer >= 2")
-        if not self.smoothing_cells >= 0.0:
-            raise ConfigurationError("smoothing_cells must be >= 0")
+        if not 0.0 <= self.smoothing_cells <= MAX_SMOOTHING_CELLS:
+            raise ConfigurationError(f"smoothing_cells must be in 0..{MAX_SMOOTHING_CELLS}")
         if not 0.0 <= self.untrained_density < self.trained_density:
             raise ConfigurationError("need 0 <= untrained_density < trained_density")
 
@@ -111,12 +129,23 @@ class CoverageMap:
             s_t = tuple(int(v) for v in s)
             if lo_a.shape != (len(s_t),) or hi_a.shape != lo_a.shape or np.any(~(hi_a > lo_a)):
                 raise ConfigurationError(f"coverage: bad region for inputs {s_t}")
+            if not s_t or min(s_t) < 0 or len(set(s_t)) != len(s_t):
+                raise ConfigurationError(f"coverage: bad input set {s_t}")
+            if not np.all(np.isfinite(lo_a)) or not np.all(np.isfinite(hi_a)):
+                raise ConfigurationError(f"coverage: region of inputs {s_t} must be finite")
             if len(s_t) == 1:
-                shape: tuple[int, ...] = (
-                    max(1, math.ceil((hi_a[0] - lo_a[0]) / self.config.cell_size_1d_rad_s - 1e-9)),
-                )
+                cells = (hi_a[0] - lo_a[0]) / self.config.cell_size_1d_rad_s - 1e-9
+                if not cells <= MAX_GRID_CELLS:
+                    raise ConfigurationError(
+                        f"coverage: {cells:.3g} cells for inputs {s_t} (at most {MAX_GRID_CELLS})"
+                    )
+                shape: tuple[int, ...] = (max(1, math.ceil(cells)),)
             else:
                 shape = (int(self.config.cells_per_axis_nd),) * len(s_t)
+                if float(self.config.cells_per_axis_nd) ** len(s_t) > MAX_GRID_CELLS:
+                    raise ConfigurationError(
+                        f"coverage: {shape} cells for inputs {s_t} (at most {MAX_GRID_CELLS})"
+                    )
             grids.append(_Grid(s_t, lo_a, hi_a, shape))
         self._grids = tuple(grids)
         if counts is None:
@@ -143,6 +172,10 @@ class CoverageMap:
     def n_joints(self) -> int:
         """Number of joints (grids)."""
         return len(self._grids)
+
+    def grid_inputs(self, joint: int) -> tuple[int, ...]:
+        """Velocities (0-based joint indices) ``joint``'s grid reads."""
+        return self._grids[joint].inputs
 
     def grid_shape(self, joint: int) -> tuple[int, ...]:
         """Cells per axis of ``joint``'s grid."""
@@ -239,16 +272,45 @@ class CoverageMap:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoverageMap:
-        """Deserialise what :meth:`to_dict` wrote."""
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
+        from teleop_force.friction.base import file_floats, file_int
+
+        if not isinstance(data, dict):
+            raise ModelFileError(f"expected an object, got {type(data).__name__}")
+        field = "config"
         try:
-            config = CoverageConfig(**data["config"])
+            config_value = data["config"]
+            if not isinstance(config_value, dict):
+                raise ModelFileError("expected an object", column=field)
+            config = CoverageConfig(**config_value)
+            field = "grids"
             grids = data["grids"]
-            return cls(
-                [g["inputs"] for g in grids],
-                [g["x_min_rad_s"] for g in grids],
-                [g["x_max_rad_s"] for g in grids],
-                config,
-                [np.asarray(g["counts"], dtype=float) for g in grids],
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ModelFileError(f"bad coverage map: {exc}") from exc
+            if not isinstance(grids, list):
+                raise ModelFileError("expected a list of grids", column=field)
+            inputs, lows, highs, counts = [], [], [], []
+            for j, grid in enumerate(grids):
+                field = f"grids[{j}]"
+                if not isinstance(grid, dict):
+                    raise ModelFileError("expected an object", column=field)
+                field = f"grids[{j}].inputs"
+                if not isinstance(grid["inputs"], list):
+                    raise ModelFileError("expected a list of joint indices", column=field)
+                inputs.append([file_int(i, field, 0, 255) for i in grid["inputs"]])
+                for key, out in (("x_min_rad_s", lows), ("x_max_rad_s", highs)):
+                    field = f"grids[{j}].{key}"
+                    out.append(file_floats(grid[key], field))
+                field = f"grids[{j}].counts"
+                values = file_floats(grid["counts"], field)
+                if np.any(values < 0):
+                    raise ModelFileError("sample counts must be >= 0", column=field)
+                counts.append(values)
+            field = "grids"
+            return cls(inputs, lows, highs, config, counts)
+        except ModelFileError as exc:
+            if exc.column is None:
+                raise ModelFileError(exc.problem, column=field) from None
+            raise
+        except KeyError as exc:
+            raise ModelFileError(f"missing {exc}", column=field) from None
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ModelFileError(f"bad coverage map: {exc}", column=field) from None

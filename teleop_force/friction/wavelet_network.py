@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, ModelError, ModelFileError
-from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageMap
 
@@ -53,6 +53,11 @@ A0_DEFAULT = 2.0
 B0_DEFAULT = 1.0
 #: Samples per chunk when evaluating a batch (keeps every temporary near the CPU caches).
 _EVAL_CHUNK_ELEMENTS = 160_000
+#: Bounds of a pool (the paper's Omni pool has ~13 000 wavelets over 6 dilations): a bad
+#: spec or model file is refused before it can allocate gigabytes or loop for hours.
+MAX_POOL_SIZE = 1_000_000
+MAX_DILATIONS = 64
+MAX_INPUTS = 8
 
 
 def mexican_hat(x: np.ndarray) -> np.ndarray:
@@ -140,9 +145,9 @@ class WaveletJointSpec:
             raise ConfigurationError("dilations must be integers")
         if self.m_min > self.m_max:
             raise ConfigurationError(f"m_min {self.m_min} > m_max {self.m_max}")
-        if not (self.mu > 0.0 and self.theta > 0.0):
+        if not (0.0 < self.mu < math.inf and 0.0 < self.theta < math.inf):
             raise ConfigurationError(
-                f"thresholds must be > 0, got mu={self.mu}, theta={self.theta}"
+                f"thresholds must be finite and > 0, got mu={self.mu}, theta={self.theta}"
             )
         object.__setattr__(self, "inputs", inputs)
         object.__setattr__(self, "x_min_rad_s", lo)
@@ -171,16 +176,34 @@ class WaveletJointSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WaveletJointSpec:
-        """Deserialise what :meth:`to_dict` wrote."""
-        return cls(
-            inputs=tuple(data["inputs"]),
-            x_min_rad_s=tuple(data["x_min_rad_s"]),
-            x_max_rad_s=tuple(data["x_max_rad_s"]),
-            m_min=int(data["m_min"]),
-            m_max=int(data["m_max"]),
-            mu=float(data["mu"]),
-            theta=float(data["theta"]),
-        )
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
+        if not isinstance(data, dict):
+            raise ModelFileError(f"expected an object, got {type(data).__name__}")
+        for key in ("inputs", "x_min_rad_s", "x_max_rad_s", "m_min", "m_max", "mu", "theta"):
+            if key not in data:
+                raise ModelFileError("missing", column=key)
+        if not isinstance(data["inputs"], list):
+            raise ModelFileError("expected a list of joint indices", column="inputs")
+        inputs = tuple(file_int(v, "inputs", 0, MAX_JOINTS - 1) for v in data["inputs"])
+        bounds = {}
+        for key in ("x_min_rad_s", "x_max_rad_s", "mu", "theta"):
+            value = file_floats(data[key], key)
+            if value.ndim != (0 if key in ("mu", "theta") else 1):
+                raise ModelFileError("wrong shape", column=key)
+            bounds[key] = value
+        dilations = {k: file_int(data[k], k, -1000, 1000) for k in ("m_min", "m_max")}
+        try:
+            return cls(
+                inputs=inputs,
+                x_min_rad_s=tuple(float(v) for v in bounds["x_min_rad_s"]),
+                x_max_rad_s=tuple(float(v) for v in bounds["x_max_rad_s"]),
+                m_min=dilations["m_min"],
+                m_max=dilations["m_max"],
+                mu=float(bounds["mu"]),
+                theta=float(bounds["theta"]),
+            )
+        except ConfigurationError as exc:
+            raise ModelFileError(str(exc)) from None
 
 
 def omni_wavelet_specs(
@@ -231,16 +254,19 @@ class WaveletPool:
         edge_ring: bool = True,
     ) -> None:
         """Build the pools of all joints."""
-        if not a0 > 1.0 or not b0 > 0.0:
-            raise ConfigurationError(f"need a0 > 1 and b0 > 0, got a0={a0}, b0={b0}")
+        if not 1.0 < a0 < math.inf or not 0.0 < b0 < math.inf:
+            raise ConfigurationError(f"need finite a0 > 1 and b0 > 0, got a0={a0}, b0={b0}")
         self.specs = tuple(specs)
         self.n_inputs = int(n_inputs)
         self.a0 = float(a0)
         self.b0 = float(b0)
         self.edge_ring = bool(edge_ring)
+        if not self.specs:
+            raise ConfigurationError("a wavelet pool needs at least one joint")
         for spec in self.specs:
             if max(spec.inputs) >= self.n_inputs:
                 raise ConfigurationError(f"wavelet input {max(spec.inputs)} >= {self.n_inputs}")
+        self._check_size()
         self.dmax = max(spec.d for spec in self.specs)
         ring = 1 if self.edge_ring else 0
         blocks: list[dict[int, _Block]] = []
@@ -270,7 +296,7 @@ class WaveletPool:
         self.joint = np.concatenate([r[0] for r in rows]).astype(np.int64)
         self.m = np.concatenate([r[1] for r in rows]).astype(np.int64)
         self.n = np.concatenate([r[2] for r in rows], axis=0)
-        self.d = np.asarray([self.specs[j].d for j in self.joint], dtype=np.int64)
+        self.d = np.asarray([spec.d for spec in self.specs], dtype=np.int64)[self.joint]
         scale = self.a0 ** self.m.astype(float)
         self.inv_scale = 1.0 / scale
         self.amplitude = self.a0 ** (-self.d * self.m / 2.0)
@@ -287,6 +313,38 @@ class WaveletPool:
             "input_index", "seeds", "joint_offsets",
         ):  # fmt: skip
             getattr(self, name).flags.writeable = False
+
+    def _check_size(self) -> None:
+        """Refuse pools beyond MAX_POOL_SIZE / MAX_DILATIONS / MAX_INPUTS before building."""
+        ring = 1 if self.edge_ring else 0
+        total = 0.0
+        for j, spec in enumerate(self.specs):
+            if spec.d > MAX_INPUTS:
+                raise ConfigurationError(f"joint {j + 1}: {spec.d} inputs (at most {MAX_INPUTS})")
+            if spec.m_max - spec.m_min + 1 > MAX_DILATIONS:
+                raise ConfigurationError(
+                    f"joint {j + 1}: dilations {spec.m_min}..{spec.m_max} "
+                    f"(at most {MAX_DILATIONS})"
+                )
+            lo = np.asarray(spec.x_min_rad_s)
+            hi = np.asarray(spec.x_max_rad_s)
+            for m in range(spec.m_max, spec.m_min - 1, -1):
+                try:
+                    step = self.a0**m * self.b0
+                except OverflowError:
+                    step = math.inf
+                with np.errstate(all="ignore"):
+                    n_lo, n_hi = lo / step, hi / step
+                    ok = 0.0 < step < math.inf and np.all(np.abs(np.r_[n_lo, n_hi]) < 2.0**52)
+                    per_axis = np.floor(n_hi + 1e-9) - np.ceil(n_lo - 1e-9) + 1 + 2 * ring
+                    count = float(np.prod(per_axis))
+                if ok:
+                    total += count
+                if not ok or total > MAX_POOL_SIZE:
+                    raise ConfigurationError(
+                        f"joint {j + 1}: the wavelet pool would exceed {MAX_POOL_SIZE} wavelets "
+                        f"(dilation {m}: step {step:.3g} rad/s)"
+                    )
 
     @property
     def size(self) -> int:
@@ -505,6 +563,13 @@ class WaveletNetwork(FrictionModel):
         self.fallback = fallback
         if fallback is not None and fallback.n_joints != n_joints:
             raise ModelError("wn: fallback model has a different number of joints")
+        if coverage is not None and coverage.n_joints != n_joints:
+            raise ModelError(f"wn: coverage map has {coverage.n_joints} grids, need {n_joints}")
+        if coverage is not None:
+            for j in range(n_joints):
+                inputs = coverage.grid_inputs(j)
+                if max(inputs) >= n_joints:
+                    raise ModelError(f"wn: coverage grid {j + 1} reads velocity {max(inputs) + 1}")
         self.coverage: CoverageMap | None = (
             coverage
             if coverage is not None
@@ -754,31 +819,107 @@ class WaveletNetwork(FrictionModel):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WaveletNetwork:
-        """Deserialise what :meth:`to_dict` wrote (raises ModelFileError if inconsistent)."""
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field.
+
+        Every number must be finite, the active wavelets inside their joint's pool (each
+        once), one coefficient per active wavelet, the fallback and coverage map of the same
+        joints.
+        """
+        if not isinstance(data, dict):
+            raise ModelFileError(f"expected an object, got {type(data).__name__}")
+        field = "n_joints"
         try:
-            specs = [WaveletJointSpec.from_dict(e) for e in data["joints"]]
+            n_joints = file_int(data["n_joints"], field, 1, MAX_JOINTS)
+            field = "joints"
+            entries = data["joints"]
+            if not isinstance(entries, list) or len(entries) != n_joints:
+                raise ModelFileError(f"expected {n_joints} joint networks")
+            specs = []
+            for j, entry in enumerate(entries):
+                field = f"joints[{j}]"
+                specs.append(_nested(field, lambda e=entry: WaveletJointSpec.from_dict(e)))
+                if max(specs[-1].inputs) >= n_joints:
+                    field = f"joints[{j}].inputs"
+                    raise ModelFileError(f"velocity index {max(specs[-1].inputs)} >= {n_joints}")
+            scalars = {}
+            for key, default in (("a0", A0_DEFAULT), ("b0", B0_DEFAULT)):
+                field = key
+                value = file_floats(data.get(key, default), key)
+                if value.ndim != 0:
+                    raise ModelFileError("expected a number")
+                scalars[key] = float(value)
+            field = "edge_ring"
+            edge_ring = data.get("edge_ring", True)
+            if not isinstance(edge_ring, bool):
+                raise ModelFileError(f"expected true or false, got {edge_ring!r}")
+            field = "fallback"
             fallback = data.get("fallback")
+            if fallback is not None:
+                fallback = _nested(field, lambda: CoupledCoulombViscous.from_dict(fallback))
+            field = "coverage"
             coverage = data.get("coverage")
+            if coverage is not None:
+                coverage = _nested(field, lambda: CoverageMap.from_dict(coverage))
+                field = "coverage.grids"
+                if coverage.n_joints != n_joints:
+                    raise ModelFileError(f"{coverage.n_joints} grids for {n_joints} joints")
+                for j in range(n_joints):
+                    field = f"coverage.grids[{j}].inputs"
+                    if max(coverage.grid_inputs(j)) >= n_joints:
+                        raise ModelFileError(f"reads a velocity beyond joint {n_joints}")
+            field = "joints"
             net = cls(
-                int(data["n_joints"]),
+                n_joints,
                 specs,
-                a0=float(data.get("a0", A0_DEFAULT)),
-                b0=float(data.get("b0", B0_DEFAULT)),
-                edge_ring=bool(data.get("edge_ring", True)),
-                fallback=None if fallback is None else CoupledCoulombViscous.from_dict(fallback),
-                coverage=None if coverage is None else CoverageMap.from_dict(coverage),
+                a0=scalars["a0"],
+                b0=scalars["b0"],
+                edge_ring=edge_ring,
+                fallback=fallback,
+                coverage=coverage,
             )
             if coverage is None:
                 net.coverage = None
-            for j, entry in enumerate(data["joints"]):
-                active = np.asarray(entry["active"], dtype=np.int64).reshape(-1, 1 + specs[j].d)
-                coefficients = np.asarray(entry["coefficients"], dtype=float)
+            for j, entry in enumerate(entries):
+                d = specs[j].d
+                field = f"joints[{j}].active"
+                if "active" not in entry:
+                    raise ModelFileError("missing")
+                active = file_floats(entry["active"], field)
+                if active.size == 0:
+                    active = active.reshape(0, 1 + d)
+                if active.ndim != 2 or active.shape[1] != 1 + d:
+                    raise ModelFileError(f"expected a list of [m, n1..n{d}] rows")
+                if np.any(active != np.round(active)) or np.any(np.abs(active) > 2.0**52):
+                    raise ModelFileError("wavelet indices must be integers")
+                active = active.astype(np.int64)
                 idx = net.pool.index_of(j, active[:, 0], active[:, 1:])
                 if np.any(idx < 0):
-                    raise ModelFileError(f"wn joint {j + 1}: active wavelet outside the pool")
+                    row = int(np.flatnonzero(idx < 0)[0])
+                    raise ModelFileError(f"wavelet {active[row].tolist()} is outside the pool")
+                if np.unique(idx).size != idx.size:
+                    raise ModelFileError("a wavelet is listed twice")
+                field = f"joints[{j}].coefficients"
+                if "coefficients" not in entry:
+                    raise ModelFileError("missing")
+                coefficients = file_floats(entry["coefficients"], field)
+                if coefficients.shape != (idx.size,):
+                    raise ModelFileError(f"expected {idx.size} numbers, one per active wavelet")
                 net.set_structure(j, idx, coefficients)
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, ModelFileError):
-                raise
-            raise ModelFileError(f"bad wavelet-network model: {exc}") from exc
+        except ModelFileError as exc:
+            if exc.column is None:
+                raise ModelFileError(exc.problem, column=field) from None
+            raise
+        except KeyError as exc:
+            raise ModelFileError(f"missing {exc}", column=field) from None
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ModelFileError(f"bad wavelet-network model: {exc}", column=field) from None
         return net
+
+
+def _nested(field: str, build: Any) -> Any:
+    """``build()``; its ModelFileError re-raised with the column prefixed by ``field``."""
+    try:
+        return build()
+    except ModelFileError as exc:
+        column = field if exc.column is None else f"{field}.{exc.column}"
+        raise ModelFileError(exc.problem, column=column) from None

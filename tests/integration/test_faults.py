@@ -7,7 +7,8 @@ Opt-in (``-m slow``: process start-ups cost minutes on a shared 2-core machine):
 One peer system (service recording, slave, master; the test's own observer session is the
 rendezvous) takes the faults in order: malformed payloads, master frozen (SIGSTOP / SIGCONT),
 master killed and restarted, recorder-service killed and restarted. A second system talks
-through a router process (client mode), which is killed and restarted. ``test_master_killed``
+through a router process (client mode), which is killed and restarted; it runs first, alone
+(the two systems at once overloaded a 2-core machine). ``test_master_killed``
 extends ``test_teleop_live.py`` (which checks the hold after a SIGKILL) with the restart.
 Figures go to ``test-output/faults.json``.
 """
@@ -195,6 +196,21 @@ class System:
             lambda: self.observer.state() == "FOLLOWING", timeout_s, f"FOLLOWING\n{self.logs()}"
         )
 
+    def final_stats(self) -> dict:
+        """Holds and loop timing of the slave and master (the load the faults ran under)."""
+        out: dict = {"load_average": os.getloadavg()}
+        with contextlib.suppress(TransportError, AssertionError):
+            slave = self.slave_stats()
+            out["slave"] = {
+                "holds": slave["holds"],
+                "hold_events_total": slave.get("hold_events_total"),
+                "loop": slave["loop"],
+            }
+        with contextlib.suppress(TransportError, AssertionError):
+            master = self.query(keys.process_stats(MASTER, "master"))
+            out["master"] = {"loop": master["loop"]}
+        return out
+
     def logs(self) -> str:
         try:
             return self.log.read_text(errors="replace")[-3000:]
@@ -224,11 +240,97 @@ def system(tmp_path_factory):
         for p in system.processes.values():
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(p.pid, signal.SIGCONT)
+        RESULTS["peer_system_final"] = system.final_stats()
         RESULTS["exit_codes"] = system.close()
         session.close()
         OUT.parent.mkdir(exist_ok=True)
         OUT.write_text(json.dumps(RESULTS, indent=1, default=str) + "\n")
         print(f"\nfault figures: {json.dumps(RESULTS, indent=1, default=str)}")
+
+
+# --------------------------------------------------------------------------- router
+# First, before the peer system exists: two systems at once (seven processes with 1 kHz
+# loops on a 2-core machine) made the router figures those of the machine's overload.
+
+
+def test_router_restart_clients_reconnect_and_the_stream_resumes(tmp_path):
+    port = free_tcp_port()
+    endpoint = listen_endpoint(port)
+    log = tmp_path / "processes.log"
+    router_argv = python_module("teleop_force.router", "--listen", endpoint)
+    router = spawn(router_argv, log)
+    session = None
+    system = None
+    try:
+        session = _open_client(endpoint, STARTUP_TIMEOUT_S)
+        args = ["--mode", "client", "--connect", endpoint, "--no-multicast"]
+        system = System(tmp_path, args, session)
+        system.start("service")
+        system.start("slave")
+        system.start("master")
+        system.wait_following(60.0)
+        time.sleep(1.0)
+        with system.observer.lock:
+            n_estimates = len(system.observer.estimates)
+        router.send_signal(signal.SIGKILL)
+        router.wait(10)
+        killed = time.perf_counter()
+        time.sleep(2.0)
+        tokens = [keys.alive(SLAVE, "service"), keys.alive(SLAVE, "slave"),
+                  keys.alive(MASTER, "master")]  # fmt: skip
+        lost = [t for t in tokens if not system.observer.has(t)]
+        router = spawn(router_argv, log)
+        back = time.perf_counter()
+        wait_for(
+            lambda: any(t > back for t, _ in system.observer.estimates[n_estimates:]),
+            60.0, f"estimates after the router restart\n{system.logs()}",
+        )  # fmt: skip
+        first_estimate = next(t for t, _ in system.observer.estimates[n_estimates:] if t > back)
+        wait_for(lambda: system.observer.first_state_after(back, "FOLLOWING"), 60.0, "FOLLOWING")
+        following = system.observer.first_state_after(back, "FOLLOWING")
+        wait_for(lambda: all(system.observer.has(t) for t in tokens), 30.0, "tokens again")
+        tokens_back = time.perf_counter()
+        time.sleep(1.0)
+        slave, service = system.slave_stats(), system.service_stats()
+        RESULTS["router_restart"] = {
+            "router_down_s": round(back - killed, 2),
+            "tokens_lost_while_down": lost,
+            "restart_to_all_tokens_seen_s": round(tokens_back - back, 2),
+            "restart_to_first_estimate_s": round(first_estimate - back, 2),
+            "restart_to_following_s": round(following - back, 2),
+            "slave_hold_reasons": [e["reason"] for e in slave["hold_events"]],
+            "slave_hold_events_total": slave.get("hold_events_total"),
+            "service_stream_restarts": service["joint_states"]["stream_restarts"],
+            "service_joint_states_lost": service["joint_states"]["lost"],
+            "final": system.final_stats(),
+        }
+        assert all(p.poll() is None for p in system.processes.values())  # nobody died
+        assert any("token lost" in e["reason"] or "stale" in e["reason"]
+                   for e in slave["hold_events"])  # fmt: skip
+        assert service["joint_states"]["stream_restarts"] >= 1
+        assert service["estimates"]["errors"] == 0
+    finally:
+        codes = system.close() if system is not None else {}
+        RESULTS["router_exit_codes"] = codes
+        if session is not None:
+            session.close()
+        stop(router, signal.SIGKILL)
+        OUT.parent.mkdir(exist_ok=True)
+        OUT.write_text(json.dumps(RESULTS, indent=1, default=str) + "\n")
+
+
+def _open_client(endpoint: str, timeout_s: float) -> zenoh.Session:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return open_session(ZenohOptions(mode="client", connect=(endpoint,)))
+        except TransportError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
+# --------------------------------------------------------------------------- peer system
 
 
 def invalid_payloads(seed: int, n: int, cls) -> list[bytes]:
@@ -387,8 +489,9 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
     service.wait(10)
     killed = time.perf_counter()
     record = system.records[-1]
-    reader = SessionReader(record)
+    reader = SessionReader(record)  # opens: a killed writer's file needs no footer
     in_file = sum(reader.message_counts.values())
+    iterated = sum(1 for _ in reader.messages())  # and every counted message decodes
     received = _recorded_counts(seen)
     # The slave goes on without the service: no hold, no gap in its joint states.
     time.sleep(1.0)
@@ -408,12 +511,17 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
         "fraction_kept_of_written": round(in_file / recording["messages"], 5),
         "fraction_kept_of_received": round(in_file / received, 5),
         "recording_length_s": round(killed - service_started, 1),
+        "file_opened": True,
+        "messages_iterated": iterated,
         "file_truncated": reader.truncated,
         "restart_token_s": round(startup_s, 2),
         "restart_to_first_estimate_s": round(first_new - restarted, 2),
+        "first_estimate_seq_after_restart": new[0][1].seq,
+        "load_average": os.getloadavg(),
     }
     RESULTS["slave_joint_states_observer_gaps"] = int(np.sum(np.diff(seqs) != 1))
     assert reader.truncated  # killed: no footer, and still readable
+    assert iterated == in_file
     # Everything the writer reported durable (in complete chunks) before the kill is there,
     # and at least 99 % of what it reported written (durable or in the open chunk).
     assert in_file >= recording["durable"]
@@ -429,73 +537,3 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
     assert RESULTS["slave_joint_states_observer_gaps"] == 0  # the observer lost nothing
     stats = system.service_stats()
     assert stats["joint_states"]["lost"] == 0 and stats["estimates"]["errors"] == 0
-
-
-# --------------------------------------------------------------------------- router
-
-
-def test_router_restart_clients_reconnect_and_the_stream_resumes(tmp_path):
-    port = free_tcp_port()
-    endpoint = listen_endpoint(port)
-    log = tmp_path / "processes.log"
-    router_argv = python_module("teleop_force.router", "--listen", endpoint)
-    router = spawn(router_argv, log)
-    session = None
-    system = None
-    try:
-        session = _open_client(endpoint, STARTUP_TIMEOUT_S)
-        args = ["--mode", "client", "--connect", endpoint, "--no-multicast"]
-        system = System(tmp_path, args, session)
-        system.start("service")
-        system.start("slave")
-        system.start("master")
-        system.wait_following(60.0)
-        time.sleep(1.0)
-        with system.observer.lock:
-            n_estimates = len(system.observer.estimates)
-        router.send_signal(signal.SIGKILL)
-        router.wait(10)
-        killed = time.perf_counter()
-        time.sleep(2.0)
-        router = spawn(router_argv, log)
-        back = time.perf_counter()
-        wait_for(
-            lambda: any(t > back for t, _ in system.observer.estimates[n_estimates:]),
-            60.0, f"estimates after the router restart\n{system.logs()}",
-        )  # fmt: skip
-        first_estimate = next(t for t, _ in system.observer.estimates[n_estimates:] if t > back)
-        wait_for(lambda: system.observer.first_state_after(back, "FOLLOWING"), 60.0, "FOLLOWING")
-        following = system.observer.first_state_after(back, "FOLLOWING")
-        time.sleep(1.0)
-        slave, service = system.slave_stats(), system.service_stats()
-        RESULTS["router_restart"] = {
-            "router_down_s": round(back - killed, 2),
-            "restart_to_first_estimate_s": round(first_estimate - back, 2),
-            "restart_to_following_s": round(following - back, 2),
-            "slave_hold_reasons": [e["reason"] for e in slave["hold_events"]],
-            "service_stream_restarts": service["joint_states"]["stream_restarts"],
-        }
-        assert all(p.poll() is None for p in system.processes.values())  # nobody died
-        assert any("token lost" in e["reason"] or "stale" in e["reason"]
-                   for e in slave["hold_events"])  # fmt: skip
-        assert service["joint_states"]["stream_restarts"] >= 1
-        assert service["estimates"]["errors"] == 0
-    finally:
-        codes = system.close() if system is not None else {}
-        RESULTS["router_exit_codes"] = codes
-        if session is not None:
-            session.close()
-        stop(router, signal.SIGKILL)
-        OUT.parent.mkdir(exist_ok=True)
-        OUT.write_text(json.dumps(RESULTS, indent=1, default=str) + "\n")
-
-
-def _open_client(endpoint: str, timeout_s: float) -> zenoh.Session:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            return open_session(ZenohOptions(mode="client", connect=(endpoint,)))
-        except TransportError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.2)
