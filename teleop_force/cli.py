@@ -275,8 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
     p.add_argument("--robot", default="omni", help="omni (default), none, or a description file")
     p.add_argument("--friction", choices=("cv", "coupled-cv", "wn"), default="wn")
-    p.add_argument("--wn-fit", choices=("adaptive", "batch"), default="adaptive",
-                   help="train the wavelet network by Lyapunov adaptation (paper) or batch least squares")
+    p.add_argument("--wn-fit", choices=("adaptive", "batch"), default="batch",
+                   help="train the wavelet network by batch ridge least squares (default, as the"
+                   " library) or by the paper's Lyapunov adaptation")
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(run=_cmd_identify)
 

@@ -218,6 +218,12 @@ def run_experiments(
            + ", ".join(f"joint {j + 1} {100 * c:.1f} %" for j, c in enumerate(coverage)), ""]
     results["table_VI"] = table_six
     results["test_coverage"] = [float(c) for c in coverage]
+    table_one_test = evaluate_prepared(model, prepare([test_rec], description, model.filter_config, model.base)[0])
+    reverse = {"train": _pct(report.friction_relative_rms), "test": _pct(table_one_test["relative_rms"])}
+    md += ["Reverse torque computation of the Table I model (rigid body + coupled CV, fitted on the",
+           f"rigid-body session): relative RMS per joint {reverse['train']} % on its training session,",
+           f"{reverse['test']} % on this independent teleoperation session.", ""]
+    results["table_I"]["reverse_torque_relative_rms_pct"] = reverse
 
     # --- Beyond the paper: a training trajectory that fills the test's velocity region ------------
     qd_test = test_prepared[0].signals.qd_rad_s
