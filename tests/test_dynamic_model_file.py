@@ -12,7 +12,6 @@ import contextlib
 import copy
 import json
 import math
-import time
 import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
@@ -275,14 +274,12 @@ def test_a_network_too_large_to_build_is_refused_without_allocating_it(tmp_path,
     """A few bytes of JSON used to make the pool allocate gigabytes (or loop for hours)."""
     path = _write(tmp_path, _changed("wn", change))
     tracemalloc.start()
-    started = time.perf_counter()
     try:
         with pytest.raises(ModelFileError) as info:
             DynamicModel.load(path)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert time.perf_counter() - started < 20.0
     assert peak < 200e6, f"{peak / 1e6:.0f} MB"
     assert str(path) in str(info.value) and "column 'friction" in str(info.value)
 
