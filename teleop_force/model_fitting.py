@@ -89,8 +89,9 @@ def prepare(
     return prepared, base
 
 
-def _stage_one_friction(kind: str, description: RobotDescription) -> FrictionModel:
-    if kind == "cv":
+def stage_one_friction(friction_kind: str, description: RobotDescription) -> FrictionModel:
+    """The CV model (``friction_kind`` ``cv``) or else the coupled CV fitted with the rigid body."""
+    if friction_kind == "cv":
         return CoulombViscous(description.n_joints)
     return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
@@ -140,7 +141,7 @@ def identify_model(
     config = config or FilterConfig()
     rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
-    stage_one = _stage_one_friction("cv" if friction_kind == "cv" else "coupled-cv", description)
+    stage_one = stage_one_friction(friction_kind, description)
     with_offsets = not description.has_rigid_body
     regressor, torque = _stack_regressor(prepared, stage_one, with_offsets)
     names = list(base.names() if base is not None else [])
@@ -154,7 +155,7 @@ def identify_model(
     if base is not None and rigid_body != RigidBodyFitOptions.plain():
         rigid = fit_rigid_body(recordings, description, base, stage_one, config, rigid_body)
         rigid_fit = rigid.identification
-        base_values, base_std = rigid.base_values, rigid.base_std
+        base_values, base_std = rigid.base_values.copy(), rigid.base_std.copy()
         friction_torque = torque - np.einsum("kjp,p->kj", regressor[:, :, :r], base_values)
         stage_one_fit = least_squares(regressor[:, :, r:], friction_torque, names[r:])
         friction_values = stage_one_fit.parameters

@@ -28,17 +28,13 @@ from teleop_force.effects import BasisSpec, FoundEffect, variable_values
 from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.filtered_regressor import FilterConfig
 from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.identification import least_squares
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
-from teleop_force.model_fitting import PreparedRecording, prepare
-from teleop_force.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis, zero_phase_smoothed
+from teleop_force.model_fitting import PreparedRecording, prepare, stage_one_friction
+from teleop_force.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis
 from teleop_force.robot import RobotDescription
-
-
-#: A pre-filter cutoff so high that the filter passes every sample through unchanged.
-_PREFILTER_OFF_HZ = 1.0e6
 
 
 @dataclass(frozen=True)
@@ -57,7 +53,6 @@ class ResidualOptions:
     harmonics: int = 2
     friction: str = "wn"
     ridge: float = 1e-4
-    smoothing_hz: float | None = None
 
     def __post_init__(self) -> None:
         if self.folds < 3:
@@ -70,8 +65,6 @@ class ResidualOptions:
             raise ConfigurationError("residual friction must be cv, coupled-cv or wn")
         if self.decimate < 1:
             raise ConfigurationError("decimate must be >= 1")
-        if self.smoothing_hz is not None and not self.smoothing_hz > 0:
-            raise ConfigurationError("smoothing_hz must be > 0 or None")
 
 
 @dataclass(frozen=True)
@@ -133,6 +126,7 @@ class _Design:
         self.gram = [base[m].T @ base[m] for m in self._masks]
         self.cross = [base[m].T @ y[m] for m in self._masks]
         self.yy = np.array([float(y[m] @ y[m]) for m in self._masks])
+        self._base_errors: np.ndarray | None = None
 
     def add(self, columns: np.ndarray) -> None:
         """Make ``columns`` part of the base."""
@@ -158,7 +152,9 @@ class _Design:
     def held_out_errors(self, candidate: np.ndarray | None = None) -> np.ndarray:
         """Held-out squared error per fold, with ``candidate`` columns added if given."""
         if candidate is None:
-            return self._score(self.gram, self.cross)
+            if self._base_errors is None:
+                self._base_errors = self._score(self.gram, self.cross)
+            return self._base_errors
         grams, crosses = [], []
         for f, m in enumerate(self._masks):
             b, c = self.base[m], candidate[m]
@@ -221,12 +217,6 @@ def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
     columns = np.concatenate(out)
     data.cache[spec] = columns
     return columns
-
-
-def _stage_one(kind: str, description: RobotDescription) -> FrictionModel:
-    if kind == "cv":
-        return CoulombViscous(description.n_joints)
-    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
 
 def _joint_base(
@@ -341,10 +331,10 @@ def trace_residual(
     """Fit, find what the model lacks on held-out data, add it, refit, report before and after."""
     options = options or ResidualOptions()
     config = config or FilterConfig()
-    prepared, base = prepare(*_conditioned(recordings, description, config, options))
+    prepared, base = prepare(recordings, description, config)
     n = description.n_joints
     offsets = not description.has_rigid_body
-    friction = _stage_one("cv" if options.friction == "cv" else "coupled-cv", description)
+    friction = stage_one_friction(options.friction, description)
     stage_one = _stage_one_fit(prepared, base, friction, offsets)
     data = _select_rows(prepared, options, stage_one[: 0 if base is None else base.count])
     network = None
@@ -434,28 +424,6 @@ def _control_gain(control: _Design | None, cols: np.ndarray) -> float:
     base_errors = control.held_out_errors()
     errors = control.held_out_errors(cols)
     return float(1.0 - np.sqrt(errors.sum() / max(base_errors.sum(), 1e-300)))
-
-
-def _conditioned(
-    recordings: Sequence[Recording], description: RobotDescription, config: FilterConfig, options: ResidualOptions
-) -> tuple[list[Recording], RobotDescription, FilterConfig]:
-    """Recordings and filters for the analysis (offline: no need to be causal).
-
-    With ``options.smoothing_hz``, the angles are smoothed zero-phase
-    (:func:`~teleop_force.rigid_body_fit.zero_phase_smoothed`) and the causal pre-filter is
-    switched off. The pre-filter keeps quantization out of the estimator at run time, but it
-    acts on the torque *after* the dynamics and on the angles *before* them, and the
-    difference of the two (second order in its 8 ms time constant, largest where the
-    motion reverses) is a small position- and direction-dependent torque that the loop
-    would otherwise trace as an effect. The saved model keeps ``config``. Off by default:
-    on the blind tests it lowered the noise (joint 2 of the clean session 4.2 -> 2.4 %
-    held out) but did not remove the clean session's joint-2 finding, and on the 200 Hz
-    dVRK cable sweep it left 11.7 % instead of 8.6 %.
-    """
-    if options.smoothing_hz is None:
-        return list(recordings), description, config
-    smoothed = [replace(r, q_rad=zero_phase_smoothed(r.t_s, r.q_rad, options.smoothing_hz)) for r in recordings]
-    return smoothed, description, replace(config, velocity_cutoff_hz=_PREFILTER_OFF_HZ)
 
 
 def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]

@@ -82,16 +82,24 @@ class RigidBodyFit:
     """Result of :func:`fit_rigid_body`.
 
     Attributes:
-        identification: The whole least-squares fit: base parameters, then the friction
-            parameters, then the nuisance terms (named ``nuisance ...``).
-        base_values: Identified base parameters.
-        base_std: Their standard deviations.
+        identification: The whole least-squares fit: base parameters, then each joint's
+            friction parameters followed by its nuisance terms (named ``nuisance ...``).
+        n_base: Number of base parameters (the first entries of the fit).
 
     """
 
     identification: Identification
-    base_values: np.ndarray
-    base_std: np.ndarray
+    n_base: int
+
+    @property
+    def base_values(self) -> np.ndarray:
+        """Identified base parameters."""
+        return self.identification.parameters[: self.n_base]
+
+    @property
+    def base_std(self) -> np.ndarray:
+        """Their standard deviations."""
+        return self.identification.standard_deviations[: self.n_base]
 
 
 def zero_phase_smoothed(t_s: np.ndarray, q_rad: np.ndarray, cutoff_hz: float) -> np.ndarray:
@@ -144,6 +152,17 @@ def _as_torque(columns: np.ndarray, t_s: np.ndarray, config: FilterConfig) -> np
     return lowpass_batch(prefiltered, t_s, config.cutoff_hz)
 
 
+def _block_diagonal(per_joint: Sequence[np.ndarray]) -> np.ndarray:
+    """Each joint's columns ``(m, p_j)`` in its row of an ``(m, n, sum p_j)`` regressor."""
+    widths = [cols.shape[1] for cols in per_joint]
+    out = np.zeros((per_joint[0].shape[0], len(per_joint), sum(widths)))
+    start = 0
+    for j, cols in enumerate(per_joint):
+        out[:, j, start : start + widths[j]] = cols
+        start += widths[j]
+    return out
+
+
 def fit_rigid_body(
     recordings: Sequence[Recording],
     description: RobotDescription,
@@ -157,40 +176,29 @@ def fit_rigid_body(
     Returns the fit; ``friction.parameters`` is not touched (refit it on the causal signals).
     """
     regressor = RigidBodyRegressor(description)
-    n = description.n_joints
-    counts = friction.parameter_counts()
+    joints = range(description.n_joints)
     blocks, torques = [], []
-    nuisance_names: list[str] = []
     for rec in recordings:
         q = rec.q_rad
         if options.smoothing_hz is not None:
             q = zero_phase_smoothed(rec.t_s, q, options.smoothing_hz)
         signals = filter_signals(rec.t_s, q, rec.tau_nm, regressor, base, config)
         qd = np.gradient(q, rec.t_s, axis=0)
-        valid = signals.valid
-        m = int(valid.sum())
-        fric = np.zeros((m, n, int(sum(counts))))
-        nuisance_per_joint, names = [], []
-        for j in range(n):
-            cols = _as_torque(friction.basis(j, qd), rec.t_s, config)
-            fric[:, j, friction.joint_slice(j)] = cols[valid]
-            extra, extra_names = nuisance_friction_basis(
-                qd, j, description.friction_inputs, options
+        per_joint = []
+        for j in joints:
+            nuisance, _ = nuisance_friction_basis(qd, j, description.friction_inputs, options)
+            columns = np.concatenate((friction.basis(j, qd), nuisance), axis=1)
+            per_joint.append(_as_torque(columns, rec.t_s, config)[signals.valid])
+        blocks.append(
+            np.concatenate(
+                [signals.rigid_regressor[signals.valid], _block_diagonal(per_joint)], axis=2
             )
-            nuisance_per_joint.append(_as_torque(extra, rec.t_s, config)[valid])
-            names += extra_names
-        nuisance = np.zeros((m, n, len(names)))
-        start = 0
-        for j, cols in enumerate(nuisance_per_joint):
-            nuisance[:, j, start : start + cols.shape[1]] = cols
-            start += cols.shape[1]
-        nuisance_names = names
-        blocks.append(np.concatenate([signals.rigid_regressor[valid], fric, nuisance], axis=2))
-        torques.append(signals.tau_lowpassed_nm[valid])
-    names_all = list(base.names())
-    for j in range(n):
-        names_all += friction.parameter_names(j)
-    names_all += nuisance_names
-    fit = least_squares(np.concatenate(blocks), np.concatenate(torques), names_all)
-    r = base.count
-    return RigidBodyFit(fit, fit.parameters[:r].copy(), fit.standard_deviations[:r].copy())
+        )
+        torques.append(signals.tau_lowpassed_nm[signals.valid])
+    names = list(base.names())
+    for j in joints:
+        empty = np.zeros((1, description.n_joints))
+        names += friction.parameter_names(j)
+        names += nuisance_friction_basis(empty, j, description.friction_inputs, options)[1]
+    fit = least_squares(np.concatenate(blocks), np.concatenate(torques), names)
+    return RigidBodyFit(fit, base.count)

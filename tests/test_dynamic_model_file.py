@@ -24,23 +24,10 @@ from teleop_force.errors import ModelFileError, TeleopForceError
 from teleop_force.estimation import ForceEstimator
 from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.wavelet_network import WaveletNetwork, WaveletPool, omni_wavelet_specs
-from teleop_force.models import DEFAULT_MODEL_PATH
+from tests.fuzz.targets import model_seed_dicts
 
-
-def _seed_dicts() -> dict[str, dict]:
-    """The fuzzing's seeds: the shipped model, a WN model with its fallback, a ``none`` model."""
-    model = DynamicModel.load(DEFAULT_MODEL_PATH)
-    network = WaveletNetwork(3, omni_wavelet_specs(), fallback=model.friction)
-    wn = DynamicModel(
-        model.robot, model.n_joints, model.filter_config, model.base, model.base_values,
-        model.base_std, network, model.offsets_nm,
-    )  # fmt: skip
-    cv_none = json.loads(DEFAULT_MODEL_PATH.read_text())
-    cv_none.update(robot="none", base=None, base_names=[], base_values=[], base_std=[])
-    return {"cv": model.to_dict(), "wn": wn.to_dict(), "none": cv_none}
-
-
-SEEDS = _seed_dicts()
+#: The fuzzing's seeds: the shipped model, a WN model with its fallback, a ``none`` model.
+SEEDS = dict(zip(("cv", "wn", "none"), model_seed_dicts(), strict=True))
 HUGE = 10**400  # an integer JSON can hold and float64 cannot
 
 

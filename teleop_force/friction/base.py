@@ -41,6 +41,23 @@ def file_floats(value: object, field: str, *, finite: bool = True) -> np.ndarray
     return out
 
 
+def file_error(exc: Exception, field: str, what: str) -> ModelFileError:
+    """The ModelFileError that ``exc``, raised while reading ``field`` of a ``what``, becomes.
+
+    A ModelFileError that already names its field is kept; a missing key, or a bad value met
+    by a constructor (``TypeError``, ``ValueError``, ``OverflowError``), is named ``field``.
+    """
+    if isinstance(exc, ModelFileError):
+        return exc if exc.column is not None else ModelFileError(exc.problem, column=field)
+    if isinstance(exc, KeyError):
+        return ModelFileError(f"missing {exc}", column=field)
+    return ModelFileError(f"bad {what}: {exc}", column=field)
+
+
+#: What a model-file reader turns into a ModelFileError with :func:`file_error`.
+FILE_ERRORS = (ModelFileError, KeyError, TypeError, ValueError, OverflowError)
+
+
 def file_int(value: object, field: str, low: int, high: int) -> int:
     """Read an integer ``low <= value <= high`` of a model file; ModelFileError names ``field``."""
     if isinstance(value, bool) or not isinstance(value, int | float):

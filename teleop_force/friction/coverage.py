@@ -273,7 +273,7 @@ class CoverageMap:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoverageMap:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.base import file_floats, file_int
+        from teleop_force.friction.base import FILE_ERRORS, file_error, file_floats, file_int
 
         if not isinstance(data, dict):
             raise ModelFileError(f"expected an object, got {type(data).__name__}")
@@ -306,11 +306,5 @@ class CoverageMap:
                 counts.append(values)
             field = "grids"
             return cls(inputs, lows, highs, config, counts)
-        except ModelFileError as exc:
-            if exc.column is None:
-                raise ModelFileError(exc.problem, column=field) from None
-            raise
-        except KeyError as exc:
-            raise ModelFileError(f"missing {exc}", column=field) from None
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise ModelFileError(f"bad coverage map: {exc}", column=field) from None
+        except FILE_ERRORS as exc:
+            raise file_error(exc, field, "coverage map") from None

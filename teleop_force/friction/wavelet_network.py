@@ -45,7 +45,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, ModelError, ModelFileError
-from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
+from teleop_force.friction.base import (
+    FILE_ERRORS,
+    MAX_JOINTS,
+    FrictionModel,
+    file_error,
+    file_floats,
+    file_int,
+)
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageMap
 
@@ -905,14 +912,8 @@ class WaveletNetwork(FrictionModel):
                 if coefficients.shape != (idx.size,):
                     raise ModelFileError(f"expected {idx.size} numbers, one per active wavelet")
                 net.set_structure(j, idx, coefficients)
-        except ModelFileError as exc:
-            if exc.column is None:
-                raise ModelFileError(exc.problem, column=field) from None
-            raise
-        except KeyError as exc:
-            raise ModelFileError(f"missing {exc}", column=field) from None
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise ModelFileError(f"bad wavelet-network model: {exc}", column=field) from None
+        except FILE_ERRORS as exc:
+            raise file_error(exc, field, "wavelet-network model") from None
         return net
 
 

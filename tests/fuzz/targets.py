@@ -337,15 +337,6 @@ def _robot_seeds() -> list[bytes]:
     ]
 
 
-def robot_file_available() -> bool:
-    """Whether ``teleop_force.robot_file`` exists yet (another engineer is finishing it)."""
-    try:
-        from teleop_force import robot_file  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 # --------------------------------------------------------------------------- model files
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -21,7 +20,6 @@ from .targets import (
     URDF,
     exercise,
     model_seed_dicts,
-    robot_file_available,
     robot_input,
 )
 
@@ -105,7 +103,6 @@ robot_inputs = st.one_of(
 )
 
 
-@pytest.mark.skipif(not robot_file_available(), reason="teleop_force.robot_file not there yet")
 @fuzz(150)
 @given(robot_inputs)
 def test_fuzz_robot_description_file(data):
@@ -134,7 +131,5 @@ def test_fuzz_model_file_into_an_estimator(data):
 
 def test_the_seeds_themselves_are_accepted():
     for name, target in TARGETS.items():
-        if name == "robot description file" and not robot_file_available():
-            continue
         for seed in target.seeds():
             assert exercise(target, seed) == "accepted", name

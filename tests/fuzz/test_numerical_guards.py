@@ -9,8 +9,11 @@ the fallback at the friction level (``tests/friction/test_coverage.py``).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -128,6 +131,30 @@ def test_estimator_raises_data_error_on_non_finite_input_and_is_unharmed(model, 
     assert first and np.array_equal(after.tau_model_filtered_nm, expected.tau_model_filtered_nm)
 
 
+@contextlib.contextmanager
+def _live_service(
+    model: DynamicModel, device: str
+) -> Iterator[tuple[ForceService, list[m.ForceEstimate], Any]]:
+    """A service on a loopback peer session, the estimates it publishes, a joint-state publisher."""
+    session = open_session(
+        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
+    )
+    service = ForceService(session, model, ServiceConfig(device=device)).start()
+    got: list[m.ForceEstimate] = []
+    sub = session.declare_subscriber(
+        keys.estimated_cf(device),
+        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
+    )
+    pub = declare_data_publisher(session, keys.measured_js(device))
+    try:
+        yield service, got, pub
+    finally:
+        sub.undeclare()
+        pub.undeclare()
+        service.close()
+        session.close()
+
+
 def non_finite_joint_state(seq: int, t_ns: int, value: float) -> bytes:
     """A JointState whose second angle is ``value`` (the constructor would refuse it)."""
     raw = bytearray(m.JointState(seq, t_ns, (0.1, 0.7, 0.3), (0.0,) * 3, (0.0,) * 3).encode())
@@ -136,20 +163,10 @@ def non_finite_joint_state(seq: int, t_ns: int, value: float) -> bytes:
 
 
 def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running(model):
-    session = open_session(
-        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
-    )
     device = "guard-test"
-    service = ForceService(session, model, ServiceConfig(device=device)).start()
-    got: list[m.ForceEstimate] = []
-    sub = session.declare_subscriber(
-        keys.estimated_cf(device),
-        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
-    )
-    pub = declare_data_publisher(session, keys.measured_js(device))
     t0 = 1_700_000_000_000_000_000
     sent_bad = 0
-    try:
+    with _live_service(model, device) as (service, got, pub):
         for k in range(300):
             t_ns = t0 + k * 1_000_000
             if k % 50 == 25:
@@ -178,11 +195,6 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
         while len(got) < 399 and time.monotonic() < deadline:
             time.sleep(0.01)
         stats = service.stats()
-    finally:
-        sub.undeclare()
-        pub.undeclare()
-        service.close()
-        session.close()
     assert stats["malformed"]["by_key"] == {keys.measured_js(device): sent_bad}
     assert stats["joint_states"]["received"] == 400 and stats["joint_states"]["lost"] == 0
     assert stats["estimates"]["errors"] == 1 and stats["estimates"]["published"] == 399
@@ -195,19 +207,9 @@ def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(model):
     Beyond the bound (1e300 overflows the filter states for good, found while fuzzing) the
     joint state is dropped as malformed, see the test above.
     """
-    session = open_session(
-        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
-    )
     device = "spike-test"
-    service = ForceService(session, model, ServiceConfig(device=device)).start()
-    got: list[m.ForceEstimate] = []
-    sub = session.declare_subscriber(
-        keys.estimated_cf(device),
-        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
-    )
-    pub = declare_data_publisher(session, keys.measured_js(device))
     t0 = 1_700_000_000_000_000_000
-    try:
+    with _live_service(model, device) as (service, got, pub):
         for k in range(300):
             q = (0.1, MAX_ABS_JOINT_VALUE if k == 100 else 0.7, 0.3)
             pub.put(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())
@@ -215,11 +217,6 @@ def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(model):
         while len(got) < 300 and time.monotonic() < deadline:
             time.sleep(0.01)
         stats = service.stats()
-    finally:
-        sub.undeclare()
-        pub.undeclare()
-        service.close()
-        session.close()
     assert stats["estimates"]["errors"] == 0 and stats["estimates"]["published"] == 300
     assert all(np.all(np.isfinite(e.tau_ext_nm)) for e in got[101:])
     np.testing.assert_allclose(
