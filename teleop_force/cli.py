@@ -274,7 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("identify", help="identify rigid-body parameters and friction")
     p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
     p.add_argument("--robot", default="omni", help="omni (default), none, or a description file")
-    p.add_argument("--friction", choices=("cv", "coupled-cv", "wn"), default="wn")
+    p.add_argument("--friction", choices=("cv", "coupled-cv", "model-cv", "wn"), default="wn",
+                   help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
+                   " reaching the motors through the coupling (closed chains, cables)")
     p.add_argument("--wn-fit", choices=("adaptive", "batch"), default="batch",
                    help="train the wavelet network by batch ridge least squares (default, as the"
                    " library) or by the paper's Lyapunov adaptation")

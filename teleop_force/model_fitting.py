@@ -22,6 +22,7 @@ from teleop_force.filtered_regressor import FilterConfig, FilteredSignals, filte
 from teleop_force.friction import FRICTION_KINDS
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification import Identification, least_squares, relative_rms
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
@@ -39,7 +40,9 @@ class WaveletOptions:
 
     def __post_init__(self) -> None:
         if self.method not in ("adaptive", "batch"):
-            raise ConfigurationError(f"wavelet training method must be adaptive or batch, got {self.method!r}")
+            raise ConfigurationError(
+                f"wavelet training method must be adaptive or batch, got {self.method!r}"
+            )
         if self.passes < 1:
             raise ConfigurationError("passes must be >= 1")
 
@@ -81,7 +84,8 @@ def prepare(
     for rec in recordings:
         if rec.q_rad.shape[1] != description.n_joints:
             raise DataError(
-                f"has {rec.q_rad.shape[1]} joints, robot {description.name!r} has {description.n_joints}",
+                f"has {rec.q_rad.shape[1]} joints,"
+                f" robot {description.name!r} has {description.n_joints}",
                 path=rec.source,
             )
         signals = filter_signals(rec.t_s, rec.q_rad, rec.tau_nm, regressor, base, config)
@@ -90,18 +94,23 @@ def prepare(
 
 
 def stage_one_friction(friction_kind: str, description: RobotDescription) -> FrictionModel:
-    """The CV model (``friction_kind`` ``cv``) or else the coupled CV fitted with the rigid body."""
+    """Return the friction fitted with the rigid body.
+
+    CV (``cv``), friction in model coordinates through the description's coupling
+    (``model-cv``), or else the coupled CV.
+    """
     if friction_kind == "cv":
         return CoulombViscous(description.n_joints)
+    if friction_kind == ModelCoordinateFriction.kind:
+        return ModelCoordinateFriction(description.coupling)
     return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
 
-def _friction_columns(friction: FrictionModel, signals: FilteredSignals) -> list[np.ndarray]:
-    """Per joint, the filtered friction basis (N x p_j)."""
-    return [
-        lowpass_batch(friction.basis(j, signals.qd_rad_s), signals.t_s, signals.config.cutoff_hz)
-        for j in range(friction.n_joints)
-    ]
+def _friction_regressor(friction: FrictionModel, signals: FilteredSignals) -> np.ndarray:
+    """Return the filtered friction regressor ``(N, n, p_f)`` of a recording."""
+    raw = friction.regressor(signals.qd_rad_s)
+    flat = lowpass_batch(raw.reshape(raw.shape[0], -1), signals.t_s, signals.config.cutoff_hz)
+    return flat.reshape(raw.shape)
 
 
 def _stack_regressor(
@@ -109,16 +118,12 @@ def _stack_regressor(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint regressor ``(N, n, r + p_f [+ n])`` and filtered torque over the valid samples."""
     blocks, torques = [], []
-    counts = friction.parameter_counts()
     n = friction.n_joints
     for item in prepared:
         s = item.signals
         rigid = s.rigid_regressor[s.valid]
-        cols = _friction_columns(friction, s)
+        fric = _friction_regressor(friction, s)[s.valid]
         m = int(s.valid.sum())
-        fric = np.zeros((m, n, int(sum(counts))))
-        for j in range(n):
-            fric[:, j, friction.joint_slice(j)] = cols[j][s.valid]
         parts = [rigid, fric]
         if with_offsets:
             parts.append(np.broadcast_to(np.eye(n), (m, n, n)))
@@ -134,26 +139,34 @@ def identify_model(
     config: FilterConfig | None = None,
     wavelet: WaveletOptions | None = None,
     rigid_body: RigidBodyFitOptions | None = None,
+    offsets: bool | None = None,
 ) -> tuple[DynamicModel, FitReport]:
-    """Identify rigid-body parameters and friction from recordings."""
+    """Identify rigid-body parameters and friction from recordings.
+
+    ``offsets``: fit a constant torque per joint with the friction (the data authors'
+    Coulomb + viscous + offset); None fits them only without rigid-body terms.
+    """
     if friction_kind not in FRICTION_KINDS:
-        raise ConfigurationError(f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}")
+        raise ConfigurationError(
+            f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}"
+        )
     config = config or FilterConfig()
     rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
     stage_one = stage_one_friction(friction_kind, description)
-    with_offsets = not description.has_rigid_body
+    with_offsets = not description.has_rigid_body if offsets is None else offsets
     regressor, torque = _stack_regressor(prepared, stage_one, with_offsets)
     names = list(base.names() if base is not None else [])
-    for j in range(description.n_joints):
-        names += stage_one.parameter_names(j)
+    names += stage_one.all_parameter_names()
     if with_offsets:
         names += [f"offset_{j + 1}" for j in range(description.n_joints)]
     r = 0 if base is None else base.count
-    p_f = int(sum(stage_one.parameter_counts()))
+    p_f = stage_one.parameters.size
     stage_one_fit: Identification | None = None
     if base is not None and rigid_body != RigidBodyFitOptions.plain():
-        rigid = fit_rigid_body(recordings, description, base, stage_one, config, rigid_body)
+        rigid = fit_rigid_body(
+            recordings, description, base, stage_one, config, rigid_body, with_offsets
+        )
         rigid_fit = rigid.identification
         base_values, base_std = rigid.base_values.copy(), rigid.base_std.copy()
         friction_torque = torque - np.einsum("kjp,p->kj", regressor[:, :, :r], base_values)
@@ -165,7 +178,7 @@ def identify_model(
         base_std = rigid_fit.standard_deviations[:r]
         friction_values = rigid_fit.parameters[r:]
     stage_one.parameters = friction_values[:p_f].copy()
-    offsets = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
+    offsets_nm = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
     details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
     friction: FrictionModel = stage_one
     if friction_kind == "wn":
@@ -177,7 +190,7 @@ def identify_model(
             prepared,
             description,
             base_values,
-            offsets,
+            offsets_nm,
             stage_one,
             wavelet or WaveletOptions(),
             typical_inertia(prepared, description, base, base_values),
@@ -191,7 +204,7 @@ def identify_model(
         base_values=base_values,
         base_std=base_std,
         friction=friction,
-        offsets_nm=np.asarray(offsets, dtype=float),
+        offsets_nm=np.asarray(offsets_nm, dtype=float),
         notes={
             "sources": [str(p.recording.source) for p in prepared],
             "training_relative_rms": rigid_fit.relative_rms.tolist(),
@@ -215,7 +228,10 @@ def typical_inertia(
     regressor = RigidBodyRegressor(description)
     n = description.n_joints
     diag = np.array(
-        [regressor.momentum(q_median, np.eye(n)[j])[j, base.independent] @ base_values for j in range(n)]
+        [
+            regressor.momentum(q_median, np.eye(n)[j])[j, base.independent] @ base_values
+            for j in range(n)
+        ]
     )
     return np.clip(diag, 1e-6, None)
 

@@ -12,6 +12,14 @@ Candidates are linear in their parameters (:mod:`teleop_force.effects`): smooth 
 functions of any joint angle or angle difference (optionally direction-modulated: position
 dependent friction), of other joints' velocities (coupling), of the motor torque (load
 dependent friction), of time (drift), Stribeck-like low-speed shapes and offsets.
+
+Friction controls. With a wavelet network mapping a joint's velocities, a candidate on another
+variable must also lower the held-out error with friction-shaped stand-ins in the model
+(smooth functions of the mapped velocities, Stribeck and bearing-load terms, and the
+transients after a motion reversal, :func:`reversal_transient_basis`): on a periodic
+trajectory every variable correlates with the velocities, and friction the static velocity
+map cannot follow (the velocity estimate lags the true velocity at a reversal, where dry
+friction flips) would otherwise be named after the joint angle at which the reversals happen.
 """
 
 from __future__ import annotations
@@ -285,6 +293,53 @@ def _candidates(
     return specs
 
 
+#: Displacements since the last reversal [rad] at which the reversal stand-ins decay.
+REVERSAL_DISPLACEMENTS_RAD: tuple[float, ...] = (0.003, 0.01, 0.03, 0.1)
+#: Times since the last reversal [s] at which the reversal stand-ins decay.
+REVERSAL_TIMES_S: tuple[float, ...] = (0.02, 0.05, 0.15, 0.4)
+#: A joint's direction of motion changes when its velocity passes this far beyond zero [rad/s].
+REVERSAL_DEAD_BAND_RAD_S = 0.005
+
+
+def reversal_transient_basis(
+    t_s: np.ndarray, q_rad: np.ndarray, qd_rad_s: np.ndarray
+) -> np.ndarray:
+    """Friction-shaped transients after each motion reversal of one joint: (N,) -> (N, 16).
+
+    The direction of motion is the sign of ``qd_rad_s`` held through the dead band
+    (:data:`REVERSAL_DEAD_BAND_RAD_S`); it changes at a reversal. Columns: ``exp(-|q - q_r| / x)``
+    for each displacement scale ``x`` and ``exp(-(t - t_r) / T)`` for each time scale ``T``
+    (``q_r``, ``t_r``: angle and time of the last reversal), each times the smoothed direction
+    ``tanh(qd / dead band)`` and alone. Every column is 1 (or +-1) at a reversal and decays
+    as the joint moves away from it: presliding and a velocity estimate that lags the true
+    velocity where dry friction flips.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    q_rad = np.asarray(q_rad, dtype=float)
+    v = np.asarray(qd_rad_s, dtype=float)
+    index = np.arange(v.size)
+    band = REVERSAL_DEAD_BAND_RAD_S
+    moving = np.where(v > band, 1.0, np.where(v < -band, -1.0, 0.0))
+    direction = moving[np.maximum.accumulate(np.where(moving != 0.0, index, 0))]
+    changed = np.r_[True, direction[1:] != direction[:-1]] if v.size else np.zeros(0, dtype=bool)
+    last = np.maximum.accumulate(np.where(changed, index, 0))
+    moved = np.abs(q_rad - q_rad[last])[:, None] / np.asarray(REVERSAL_DISPLACEMENTS_RAD)
+    waited = (t_s - t_s[last])[:, None] / np.asarray(REVERSAL_TIMES_S)
+    decay = np.concatenate((np.exp(-moved), np.exp(-waited)), axis=1)
+    sign = np.tanh(v / REVERSAL_DEAD_BAND_RAD_S)[:, None]
+    return np.concatenate((decay * sign, decay), axis=1)
+
+
+def _reversal_columns(data: _Data, joint: int) -> np.ndarray:
+    """Return the filtered reversal stand-ins of ``joint`` at the selected rows."""
+    out = []
+    for item, idx in zip(data.prepared, data.rows, strict=True):
+        s = item.signals
+        phi = reversal_transient_basis(s.t_s, s.q_rad[:, joint], s.qd_rad_s[:, joint])
+        out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
+    return np.concatenate(out)
+
+
 def _velocity_controls(data: _Data, joint: int, covered: tuple[int, ...]) -> list[BasisSpec]:
     """Friction-shaped stand-ins for what the friction model may still miss on ``joint``.
 
@@ -351,7 +406,11 @@ def trace_residual(
         if not specs:
             controls.append(None)
             continue
-        extra = np.concatenate([_filtered_columns(data, spec) for spec in specs] + [_nuisance_columns(data, j, description)], axis=1)
+        extra = np.concatenate(
+            [_filtered_columns(data, spec) for spec in specs]
+            + [_nuisance_columns(data, j, description), _reversal_columns(data, j)],
+            axis=1,
+        )
         controls.append(_Design(np.concatenate((design.base, extra), axis=1), design.y, data.folds, options.folds, options.ridge))
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()

@@ -24,7 +24,8 @@ Statistics (``service/stats``): joint states received / lost (sequence gaps) / r
 duplicates, malformed messages dropped (by key), estimates published, singular, errors,
 latency p50/p99/max [ms] (joint-state stamp -> estimate publish), processing time, rates, the
 fraction of estimates on trained ground, the model running (``model.path``), adaptation
-state, recording (``recording``: the open one or ``null``; ``last_recording``), controls.
+state, recording (``recording``: the open one or ``null``; ``last_recording``), controls,
+memory (``memory``: resident size and the trims of :class:`~teleop_force.process_memory.MemoryTrimmer`).
 
 Bad input never stops the service: a malformed or wrong-version payload, a joint state with a
 value beyond :data:`MAX_ABS_JOINT_VALUE` or of the wrong joint count is counted under
@@ -104,6 +105,7 @@ from teleop_force.service_transport import (
     reply_json,
     undeclare_all,
 )
+from teleop_force.process_memory import DEFAULT_TRIM_PERIOD_S, MemoryTrimmer
 from teleop_force.zenoh_session import open_session, options_from_args
 
 ROLE: Final = "service"
@@ -137,6 +139,8 @@ class ServiceConfig:
             and ``teleop_force/models/``.
         record_dirs: Folders recordings may be started in on request, besides ``recordings/``.
         record_flush_s: A recording's chunk is handed to the OS at least this often [s].
+        memory_trim_period_s: Free malloc memory is handed back to the system this often [s]
+            (:mod:`teleop_force.process_memory`); ``None``: never.
 
     """
 
@@ -148,6 +152,7 @@ class ServiceConfig:
     models_dirs: tuple[Path, ...] = ()
     record_dirs: tuple[Path, ...] = ()
     record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
+    memory_trim_period_s: float | None = DEFAULT_TRIM_PERIOD_S
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -162,6 +167,9 @@ class ServiceConfig:
         object.__setattr__(self, "record_dirs", tuple(Path(d) for d in self.record_dirs))
         if not (math.isfinite(self.record_flush_s) and self.record_flush_s > 0.0):
             raise ConfigurationError(f"record_flush_s must be > 0, got {self.record_flush_s}")
+        period = self.memory_trim_period_s
+        if period is not None and not (math.isfinite(period) and period > 0.0):
+            raise ConfigurationError(f"memory_trim_period_s must be > 0 or None, got {period}")
 
 
 class ForceService:
@@ -224,6 +232,8 @@ class ForceService:
         self.control_refused = 0
         self.last_refusal = ""
         self._logged: set[str] = set()
+        period = self.config.memory_trim_period_s
+        self.memory = MemoryTrimmer(period) if period is not None else None
         if self.config.adapt:
             self.set_adaptation(True)
         if self.config.record_path is not None:
@@ -273,6 +283,8 @@ class ForceService:
             declare_json_queryable(session, keys.service_stats(device), self.stats)
         )
         self._entities.append(declare_token(session, keys.alive(device, ROLE)))
+        if self.memory is not None:
+            self.memory.start()
         self._started_s = time.perf_counter()
         return self
 
@@ -292,6 +304,8 @@ class ForceService:
         undeclare_all(*reversed(entities), *recorded)
         if already:
             return
+        if self.memory is not None:
+            self.memory.stop()
         if self._control_thread is not None:
             self._controls.put(None)
             self._control_thread.join(DRAIN_TIMEOUT_S)
@@ -682,6 +696,7 @@ class ForceService:
                 },
                 "recording": None if self.recorder is None else self.recorder.stats(),
                 "last_recording": self.last_recording,
+                "memory": None if self.memory is None else self.memory.stats(),
                 "controls": {
                     "requests": self.control_requests,
                     "refused": self.control_refused,

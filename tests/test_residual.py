@@ -1,8 +1,11 @@
+import itertools
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from teleop_force.cli import main
 from teleop_force.dynamic_model import DynamicModel
@@ -122,3 +125,54 @@ def test_min_control_gain_is_validated() -> None:
 
     with pytest.raises(ConfigurationError):
         ResidualOptions(min_control_gain=1.0)
+
+
+def test_reversal_controls_reject_a_reversal_transient_in_disguise() -> None:
+    """Friction that lags a motion reversal is not named after the angle of the reversals.
+
+    On a sinusoid the reversals happen at the two extreme angles, so a transient that decays
+    with the displacement since the reversal is a function of q1 on each half cycle.
+    """
+    from teleop_force.residual import _control_gain, _Design, reversal_transient_basis
+
+    rng = np.random.default_rng(4)
+    t = np.arange(20000) * 1e-3
+    folds = (np.arange(t.size) * 20 // t.size) % 5
+    q1 = np.sin(2 * np.pi * 0.5 * t)
+    qd1 = np.pi * np.cos(2 * np.pi * 0.5 * t)
+    turn = np.where(qd1 > 0, -1.0, 1.0)  # the angle of the last reversal
+    transient = -0.01 * np.sign(qd1) * np.exp(-np.abs(q1 - turn) / 0.02)
+    y = transient + 1e-4 * rng.normal(size=t.size)
+    base = np.stack([np.ones_like(t), np.sign(qd1), qd1], axis=1)
+    controls = reversal_transient_basis(t, q1, qd1)
+    control = _Design(np.concatenate([base, controls], axis=1), y, folds, 5, 1e-8)
+    centres = np.linspace(-1, 1, 6)
+    disguised = np.stack([np.sign(qd1) * np.exp(-((q1 - c) / 0.3) ** 2) for c in centres], axis=1)
+    plain = _Design(base, y, folds, 5, 1e-8)
+    plain_errors = plain.held_out_errors(disguised).sum()
+    plain_gain = 1 - np.sqrt(plain_errors / plain.held_out_errors().sum())
+    assert plain_gain > 2 * ResidualOptions().min_rms_gain  # without the controls: accepted
+    assert _control_gain(control, disguised) < ResidualOptions().min_control_gain
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-2.0, 2.0), min_size=2, max_size=60),
+    st.floats(0.0, 0.01),
+)
+def test_reversal_basis_is_bounded_odd_and_resets_at_reversals(velocities, dt_s) -> None:
+    from teleop_force.residual import REVERSAL_DEAD_BAND_RAD_S, reversal_transient_basis
+
+    qd = np.asarray(velocities)
+    t = np.arange(qd.size) * (dt_s + 1e-3)
+    q = np.cumsum(qd) * 1e-3
+    phi = reversal_transient_basis(t, q, qd)
+    mirrored = reversal_transient_basis(t, -q, -qd)
+    half = phi.shape[1] // 2
+    assert phi.shape == (qd.size, 16) and np.all(np.abs(phi) <= 1.0)
+    np.testing.assert_allclose(mirrored[:, :half], -phi[:, :half], atol=1e-15)  # odd part
+    np.testing.assert_allclose(mirrored[:, half:], phi[:, half:], atol=1e-15)  # even part
+    moving = np.flatnonzero(np.abs(qd) > REVERSAL_DEAD_BAND_RAD_S)
+    for a, b in itertools.pairwise(moving):
+        if np.sign(qd[a]) != np.sign(qd[b]):  # b is a reversal: every decay restarts at 1
+            np.testing.assert_allclose(phi[b, half:], 1.0)

@@ -173,3 +173,19 @@ def test_adaptation_runs_on_a_wavelet_network_model(session, model):
     assert stats["adaptation"]["samples"] == 200
     after = network.parameters
     assert after.size != before.size or not np.array_equal(after, before)  # it learnt something
+
+
+def test_stats_report_memory_and_the_trimmer_runs(session, model):
+    config = ServiceConfig(device=DEVICE, memory_trim_period_s=0.05)
+    service = ForceService(session, model, config).start()
+    try:
+        wait_until(lambda: service.stats()["memory"]["trims"] >= 2)
+        memory = service.stats()["memory"]
+    finally:
+        service.close()
+    assert memory["available"] and memory["period_s"] == 0.05
+    assert memory["rss_mb"] > 10.0 and memory["released_mb"] >= 0.0
+    never = ServiceConfig(device=DEVICE, memory_trim_period_s=None)
+    assert ForceService(session, model, never).stats()["memory"] is None
+    with pytest.raises(ConfigurationError, match="memory_trim_period_s"):
+        ServiceConfig(device=DEVICE, memory_trim_period_s=0.0)

@@ -30,6 +30,7 @@ import zenoh
 
 from teleop_force import keys
 from teleop_force.errors import TeleopForceError
+from teleop_force.process_memory import MemoryTrimmer
 from teleop_force.zenoh_session import (
     ZenohOptions,
     add_zenoh_arguments,
@@ -678,7 +679,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
+        trimmer = MemoryTrimmer().start()  # a long-running process: RSS follows what is live
         dashboard.wait()
+        trimmer.stop()
         dashboard.stop()
     finally:
         session.close()

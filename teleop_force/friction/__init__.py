@@ -7,8 +7,9 @@ from typing import Any
 from teleop_force.errors import ModelError
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 
-FRICTION_KINDS = ("cv", "coupled-cv", "wn")
+FRICTION_KINDS = ("cv", "coupled-cv", "model-cv", "wn")
 
 
 def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
@@ -18,6 +19,8 @@ def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
         return CoulombViscous.from_dict(data)
     if kind == CoupledCoulombViscous.kind:
         return CoupledCoulombViscous.from_dict(data)
+    if kind == ModelCoordinateFriction.kind:
+        return ModelCoordinateFriction.from_dict(data)
     if kind == "wn":
         from teleop_force.friction.wavelet_network import WaveletNetwork
 
@@ -25,4 +28,11 @@ def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
     raise ModelError(f"unknown friction kind {kind!r}; expected one of {', '.join(FRICTION_KINDS)}")
 
 
-__all__ = ["FRICTION_KINDS", "CoulombViscous", "CoupledCoulombViscous", "FrictionModel", "friction_from_dict"]
+__all__ = [
+    "FRICTION_KINDS",
+    "CoulombViscous",
+    "CoupledCoulombViscous",
+    "FrictionModel",
+    "ModelCoordinateFriction",
+    "friction_from_dict",
+]

@@ -1,9 +1,15 @@
 """The :class:`FrictionModel` abstract base: joint friction linear in its parameters.
 
-Every friction model is a set of per-joint bases: joint ``j``'s friction torque is
-``basis(j, qd) @ parameters[slice_j]`` where ``qd`` holds the velocities of all motor joints.
-Keeping the bases per joint (block-diagonal) lets networks with hundreds of wavelets per
-joint be fitted without building a dense ``(samples, joints, parameters)`` tensor.
+Most friction models are a set of per-joint bases (``block_diagonal``): joint ``j``'s friction
+torque is ``basis(j, qd) @ parameters[slice_j]`` where ``qd`` holds the velocities of all
+motor joints. Keeping the bases per joint lets networks with hundreds of wavelets per joint
+be fitted without building a dense ``(samples, joints, parameters)`` tensor.
+
+A model whose parameters act on several joints at once (friction in the model coordinates of
+a coupled robot, mapped to the motors through the coupling) is not block-diagonal: it
+overrides :meth:`FrictionModel.regressor` and :meth:`FrictionModel.torque`, and its
+per-joint interface (``basis``, ``joint_slice``) refuses to answer. Fits that take every
+parameter at once use :meth:`FrictionModel.regressor` and work with both.
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ def file_floats(value: object, field: str, *, finite: bool = True) -> np.ndarray
 
 
 def file_error(exc: Exception, field: str, what: str) -> ModelFileError:
-    """The ModelFileError that ``exc``, raised while reading ``field`` of a ``what``, becomes.
+    """Return the ModelFileError that ``exc``, raised reading ``field`` of a ``what``, becomes.
 
     A ModelFileError that already names its field is kept; a missing key, or a bad value met
     by a constructor (``TypeError``, ``ValueError``, ``OverflowError``), is named ``field``.
@@ -90,6 +96,9 @@ class FrictionModel(ABC):
 
     #: Short name used in model files and on the command line.
     kind: ClassVar[str]
+    #: Whether joint ``j``'s torque is ``basis(j, qd) @ joint_parameters(j)`` (each parameter
+    #: acts on one joint). Models acting through a coupling set it False.
+    block_diagonal: ClassVar[bool] = True
 
     def __init__(self, n_joints: int, parameters: np.ndarray | None = None) -> None:
         """Create the model; ``parameters`` defaults to zeros."""
@@ -101,15 +110,20 @@ class FrictionModel(ABC):
             parameters = np.zeros(count)
         self.parameters = np.asarray(parameters, dtype=float).copy()
         if self.parameters.shape != (count,):
-            raise ModelError(f"{self.kind}: expected {count} parameters, got {self.parameters.shape}")
+            raise ModelError(
+                f"{self.kind}: expected {count} parameters, got {self.parameters.shape}"
+            )
 
     @abstractmethod
     def parameter_counts(self) -> tuple[int, ...]:
-        """Number of parameters of each joint's basis."""
+        """Return the number of parameters of each joint's basis.
+
+        Of each parameter group for a model that is not ``block_diagonal``.
+        """
 
     @abstractmethod
     def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
-        """Basis functions of joint ``joint`` (0-based) at velocities ``qd`` (N x n) -> (N x p_j)."""
+        """Return joint ``joint``'s (0-based) basis at velocities ``qd``: (N x n) -> (N x p_j)."""
 
     @abstractmethod
     def parameter_names(self, joint: int) -> list[str]:
@@ -118,6 +132,21 @@ class FrictionModel(ABC):
     @abstractmethod
     def to_dict(self) -> dict[str, Any]:
         """Serialise to JSON-compatible values (``kind`` included)."""
+
+    def regressor(self, qd: np.ndarray) -> np.ndarray:
+        """Friction regressor at velocities ``qd`` (N x n) -> (N x n x p): torque = it @ parameters.
+
+        Block-diagonal here: joint ``j``'s row holds ``basis(j, qd)`` in its own slice.
+        """
+        qd = np.asarray(qd, dtype=float)
+        out = np.zeros((qd.shape[0], self.n_joints, self.parameters.size))
+        for j in range(self.n_joints):
+            out[:, j, self.joint_slice(j)] = self.basis(j, qd)
+        return out
+
+    def all_parameter_names(self) -> list[str]:
+        """Names of every parameter, in the order of ``parameters``."""
+        return [name for j in range(self.n_joints) for name in self.parameter_names(j)]
 
     def joint_slice(self, joint: int) -> slice:
         """Slice of ``parameters`` that belongs to ``joint``."""
@@ -139,7 +168,9 @@ class FrictionModel(ABC):
         single = qd.ndim == 1
         batch = qd.reshape(1, -1) if single else qd
         if batch.shape[1] != self.n_joints:
-            raise ModelError(f"{self.kind}: expected {self.n_joints} velocities, got {batch.shape[1]}")
+            raise ModelError(
+                f"{self.kind}: expected {self.n_joints} velocities, got {batch.shape[1]}"
+            )
         out = np.empty((batch.shape[0], self.n_joints))
         for j in range(self.n_joints):
             out[:, j] = self.basis(j, batch) @ self.joint_parameters(j)

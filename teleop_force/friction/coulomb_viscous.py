@@ -31,7 +31,11 @@ class CoulombViscous(FrictionModel):
 
     def to_dict(self) -> dict[str, Any]:
         """Serialise."""
-        return {"kind": self.kind, "n_joints": self.n_joints, "parameters": self.parameters.tolist()}
+        return {
+            "kind": self.kind,
+            "n_joints": self.n_joints,
+            "parameters": self.parameters.tolist(),
+        }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:

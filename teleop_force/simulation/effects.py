@@ -81,18 +81,26 @@ class PlantEffect(ABC):
     ) -> np.ndarray:
         """Torque on every joint, zero except on :attr:`joint`: (n,) or (N, n)."""
         t, q, qd, tau = _check_inputs(t_s, q_rad, qd_rad_s, tau_motor_nm)
-        if self.joint >= q.shape[-1]:
+        if max(self.joint, self.inputs_joint) >= q.shape[-1]:
             raise ConfigurationError(
-                f"{self.name}: joint {self.joint} on a {q.shape[-1]}-joint robot"
+                f"{self.name}: joint {max(self.joint, self.inputs_joint)} on a"
+                f" {q.shape[-1]}-joint robot"
             )
         out = np.zeros_like(q)
         out[..., self.joint] = self.joint_torque(t, q, qd, tau)
         return out
 
+    @property
+    def inputs_joint(self) -> int:
+        """The highest joint index the effect reads besides :attr:`joint` (0-based)."""
+        return self.joint
+
     def describe(self) -> str:
         """One line: name, joint (1-based) and parameters."""
         fields = ", ".join(
-            f"{key}={value:.4g}" for key, value in vars(self).items() if key != "joint"
+            f"{key}={value:.4g}"
+            for key, value in vars(self).items()
+            if key != "joint" and value is not None
         )
         return f"{self.name} on joint {self.joint + 1} ({fields})"
 
@@ -300,19 +308,38 @@ class ElbowAngleBump(PlantEffect):
 
 @dataclass(frozen=True)
 class DirectionOffset(PlantEffect):
-    """A constant torque present only while the joint moves in the + direction.
+    """A constant torque present only while a joint moves in the + direction.
 
-    ``offset (1 + sgn(qd_j)) / 2``: asymmetric friction / a direction-dependent bias.
+    ``offset (1 + sgn(qd_k)) / 2`` on joint ``joint``, where ``k`` is ``direction_joint``
+    (default: ``joint`` itself). On its own joint it is asymmetric dry friction: a constant
+    plus a Coulomb term, which the declared friction models already contain
+    (``direction-offset``). Switched by another joint's direction it is a cross-joint effect
+    nobody declared (``cross-direction-offset``: joint 3 offset while joint 1 moves +, e.g. a
+    cable dragged by the base rotation).
     """
 
     name: ClassVar[str] = "direction-offset"
     offset_nm: float = 0.01
     smoothing_velocity_rad_s: float = SMOOTHING_VELOCITY_RAD_S
+    direction_joint: int | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _finite("offset_nm", self.offset_nm)
         _finite("smoothing_velocity_rad_s", self.smoothing_velocity_rad_s, positive=True)
+        k = self.direction_joint
+        if k is not None and (not isinstance(k, int | np.integer) or k < 0):
+            raise ConfigurationError(f"{self.name}: direction_joint must be an index >= 0, got {k}")
+
+    @property
+    def switching_joint(self) -> int:
+        """The joint whose direction of motion switches the offset (0-based)."""
+        return self.joint if self.direction_joint is None else int(self.direction_joint)
+
+    @property
+    def inputs_joint(self) -> int:
+        """The switching joint (checked against the robot's joint count)."""
+        return max(self.joint, self.switching_joint)
 
     def joint_torque(
         self,
@@ -321,8 +348,8 @@ class DirectionOffset(PlantEffect):
         qd_rad_s: np.ndarray,
         tau_motor_nm: np.ndarray,
     ) -> np.ndarray:
-        """Return ``offset (1 + sgn(qd_j)) / 2``."""
-        s, _ = _smooth_sign(qd_rad_s[..., self.joint], self.smoothing_velocity_rad_s)
+        """Return ``offset (1 + sgn(qd_k)) / 2``."""
+        s, _ = _smooth_sign(qd_rad_s[..., self.switching_joint], self.smoothing_velocity_rad_s)
         return 0.5 * self.offset_nm * (1.0 + s)
 
     def velocity_slope(
@@ -332,9 +359,19 @@ class DirectionOffset(PlantEffect):
         qd_rad_s: np.ndarray,
         tau_motor_nm: np.ndarray,
     ) -> np.ndarray:
-        """Return ``offset sgn'(qd_j) / 2``."""
+        """Return ``d(torque)/d(qd_joint)``: ``offset sgn'(qd_j) / 2`` on its own joint, else 0."""
+        if self.switching_joint != self.joint:
+            return np.zeros_like(np.asarray(qd_rad_s, dtype=float)[..., self.joint])
         _, ds = _smooth_sign(qd_rad_s[..., self.joint], self.smoothing_velocity_rad_s)
         return 0.5 * self.offset_nm * ds
+
+
+@dataclass(frozen=True)
+class CrossDirectionOffset(DirectionOffset):
+    """:class:`DirectionOffset` switched by another joint's direction (default: joint 1)."""
+
+    name: ClassVar[str] = "cross-direction-offset"
+    direction_joint: int | None = 0
 
 
 EffectFactory = Callable[[int, float], PlantEffect]
@@ -358,6 +395,11 @@ _REGISTRY: Mapping[str, tuple[EffectFactory, int, float]] = MappingProxyType(
         ),
         ElbowAngleBump.name: (lambda j, s: ElbowAngleBump(joint=j, amplitude_nm=s), 2, 0.02),
         DirectionOffset.name: (lambda j, s: DirectionOffset(joint=j, offset_nm=s), 2, 0.01),
+        CrossDirectionOffset.name: (
+            lambda j, s: CrossDirectionOffset(joint=j, offset_nm=s),
+            2,
+            0.01,
+        ),
     }
 )
 

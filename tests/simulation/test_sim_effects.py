@@ -26,6 +26,7 @@ def test_registry_builds_every_effect() -> None:
         "load-friction",
         "elbow-bump",
         "direction-offset",
+        "cross-direction-offset",
     }
     for name in EFFECT_NAMES:
         effect = make_effect(name)
@@ -89,6 +90,14 @@ def test_shapes_of_specific_effects() -> None:
     offset = make_effect("direction-offset", joint=2, strength=0.01)
     assert offset.torque(0.0, Q, QD, TAU)[2] == pytest.approx(0.01)
     assert offset.torque(0.0, Q, -QD, TAU)[2] == pytest.approx(0.0, abs=1e-12)
+    cross = make_effect("cross-direction-offset")  # joint 3, switched by joint 1's direction
+    assert cross.joint == 2 and cross.switching_joint == 0
+    only_joint_1 = np.array([QD[0], -QD[1], -QD[2]])
+    assert cross.torque(0.0, Q, only_joint_1, TAU)[2] == pytest.approx(0.01)
+    assert cross.torque(0.0, Q, -only_joint_1, TAU)[2] == pytest.approx(0.0, abs=1e-12)
+    assert cross.velocity_slope(0.0, Q, QD, TAU) == 0.0  # not a function of its own velocity
+    with pytest.raises(ConfigurationError, match="direction_joint"):
+        make_effect("direction-offset").__class__(joint=2, direction_joint=-1)
     bump = ElbowAngleBump(joint=2)
     far = np.array([0.0, 0.0, 1.2])  # q2 - q3 far from the bump
     assert abs(bump.torque(0.0, far, QD, TAU)[2]) < 1e-9

@@ -1,0 +1,216 @@
+"""Coulomb + viscous friction in model coordinates, reaching the motors through the coupling.
+
+A coupled robot's bearings and cables do not turn with its motors: the dVRK MTM's elbow
+bearing turns with ``qd3 - qd2`` (the parallelogram), its joint-4 cable with
+``0.6697 (qd2 - qd3) + qd4``. Their friction is a function of a *model* joint's velocity
+``w = T qd`` (``T`` the description's coupling, ``q_model = T q_motor``) and reaches the
+motors as every model torque does, through ``T^T``::
+
+    tau_f = T^T f(T qd),    f_k(w_k) = a_c,k sgn(w_k) + a_v,k w_k
+
+Each model joint's friction is set by all the motors that move it, and a motor feels the
+friction of every model joint it moves, with the coupling's fixed ratios: a per-motor model,
+even one on pairwise velocity differences (:class:`CoupledCoulombViscous`), cannot express
+that (``docs/robots.md``).
+
+Model joints whose coupling rows are parallel (the same velocity up to a factor, such as the
+MTM's elbow ``qd3 - qd2`` and its parallelogram's top link ``qd2 - qd3``) give the same
+regressor columns up to a factor, so they share one friction law: the model's *axes* are the
+coupling's distinct row directions, each kept with its first row's scale (its friction acts
+on that row's velocity). With an identity coupling this is :class:`CoulombViscous`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from teleop_force.errors import ModelError, ModelFileError
+from teleop_force.friction.base import (
+    FILE_ERRORS,
+    MAX_JOINTS,
+    FrictionModel,
+    file_error,
+    file_floats,
+    file_int,
+)
+
+#: Most model joints (coupling rows) a model file may declare.
+MAX_MODEL_JOINTS = 4 * MAX_JOINTS
+#: Rows with ``1 - |cos(angle)|`` below this (angle below ~4e-5 rad) are one axis.
+_PARALLEL_TOLERANCE = 1e-9
+#: Parameters per axis: Coulomb and viscous.
+_PER_AXIS = 2
+
+
+def distinct_axes(coupling: np.ndarray) -> tuple[int, ...]:
+    """Return the coupling rows that start a new direction, in row order.
+
+    A row starts one when it is nonzero and not parallel to an earlier row.
+    """
+    kept: list[int] = []
+    units: list[np.ndarray] = []
+    for i, row in enumerate(np.asarray(coupling, dtype=float)):
+        norm = float(np.linalg.norm(row))
+        if norm == 0.0:
+            continue
+        unit = row / norm
+        if any(1.0 - abs(float(unit @ u)) < _PARALLEL_TOLERANCE for u in units):
+            continue
+        kept.append(i)
+        units.append(unit)
+    return tuple(kept)
+
+
+class ModelCoordinateFriction(FrictionModel):
+    """``tau_f = T^T f(T qd)`` with Coulomb + viscous ``f`` on each distinct model axis."""
+
+    kind: ClassVar[str] = "model-cv"
+    block_diagonal: ClassVar[bool] = False
+
+    def __init__(self, coupling: np.ndarray, parameters: np.ndarray | None = None) -> None:
+        """Create the model for the coupling ``T`` (``n_model x n``, full column rank)."""
+        coupling = np.array(coupling, dtype=float)
+        if coupling.ndim != 2 or coupling.shape[0] < 1 or coupling.shape[1] < 1:
+            raise ModelError(f"{self.kind}: coupling must be a matrix, got shape {coupling.shape}")
+        if not np.all(np.isfinite(coupling)):
+            raise ModelError(f"{self.kind}: coupling matrix is not finite")
+        n_model, n = coupling.shape
+        if n_model < n or np.linalg.svd(coupling, compute_uv=False)[-1] < 1e-9:
+            raise ModelError(
+                f"{self.kind}: coupling {coupling.shape} does not have full column rank"
+            )
+        coupling.setflags(write=False)
+        self.coupling = coupling
+        #: Coupling rows whose velocities carry a friction law, one per distinct direction.
+        self.axis_rows = distinct_axes(coupling)
+        #: Those rows (``n_axes x n``): axis ``a``'s velocity is ``axes[a] @ qd``.
+        self.axes = coupling[list(self.axis_rows)]
+        super().__init__(n, parameters)
+
+    @property
+    def n_axes(self) -> int:
+        """Number of friction laws (distinct coupling directions)."""
+        return len(self.axis_rows)
+
+    def parameter_counts(self) -> tuple[int, ...]:
+        """Two parameters (Coulomb, viscous) per axis, not per motor joint."""
+        return (_PER_AXIS,) * self.n_axes
+
+    def axis_velocities(self, qd: np.ndarray) -> np.ndarray:
+        """Velocities of the axes, ``(N, n) -> (N, n_axes)``."""
+        return np.asarray(qd, dtype=float) @ self.axes.T
+
+    def axis_torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction torque of each axis, ``f(T qd)`` over the distinct rows, ``(N, n_axes)``."""
+        w = self.axis_velocities(qd)
+        p = self.parameters.reshape(self.n_axes, _PER_AXIS)
+        return np.sign(w) * p[:, 0] + w * p[:, 1]
+
+    def regressor(self, qd: np.ndarray) -> np.ndarray:
+        """``(N, n, 2 n_axes)``: joint ``j``'s row holds ``T[a, j] [sgn(w_a), w_a]`` per axis."""
+        w = self.axis_velocities(np.atleast_2d(qd))
+        per_axis = np.stack((np.sign(w), w), axis=2)
+        out = np.einsum("aj,kas->kjas", self.axes, per_axis)
+        return out.reshape(w.shape[0], self.n_joints, _PER_AXIS * self.n_axes)
+
+    def torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction torque ``T^T f(T qd)`` [N m] ((n,) -> (n,), or (N, n) -> (N, n))."""
+        qd = np.asarray(qd, dtype=float)
+        single = qd.ndim == 1
+        batch = qd.reshape(1, -1) if single else qd
+        if batch.ndim != 2 or batch.shape[1] != self.n_joints:
+            raise ModelError(
+                f"{self.kind}: expected {self.n_joints} velocities, got {batch.shape[-1]}"
+            )
+        out = self.axis_torque(batch) @ self.axes
+        return out[0] if single else out
+
+    def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
+        """Not available: a parameter acts on several joints (use :meth:`regressor`)."""
+        raise ModelError(self._not_per_joint())
+
+    def joint_slice(self, joint: int) -> slice:
+        """Not available: parameters belong to axes, not joints (use :meth:`axis_slice`)."""
+        raise ModelError(self._not_per_joint())
+
+    def axis_slice(self, axis: int) -> slice:
+        """Slice of ``parameters`` of axis ``axis`` (Coulomb, viscous)."""
+        if not 0 <= axis < self.n_axes:
+            raise ModelError(f"{self.kind}: axis {axis} outside 0..{self.n_axes - 1}")
+        return slice(_PER_AXIS * axis, _PER_AXIS * (axis + 1))
+
+    def axis_label(self, axis: int) -> str:
+        """``m<k>``: the 1-based model joint (coupling row) whose velocity the axis is."""
+        return f"m{self.axis_rows[axis] + 1}"
+
+    def parameter_names(self, joint: int) -> list[str]:
+        """Names of the parameters acting on motor joint ``joint`` (its axes')."""
+        if not 0 <= joint < self.n_joints:
+            raise ModelError(f"{self.kind}: joint {joint} outside 0..{self.n_joints - 1}")
+        names = self.all_parameter_names()
+        return [
+            name
+            for a in range(self.n_axes)
+            if self.axes[a, joint] != 0.0
+            for name in names[self.axis_slice(a)]
+        ]
+
+    def all_parameter_names(self) -> list[str]:
+        """``a_c,m<k>`` and ``a_v,m<k>`` per axis, ``k`` the model joint (coupling row)."""
+        return [
+            name
+            for a in range(self.n_axes)
+            for name in (f"a_c,{self.axis_label(a)}", f"a_v,{self.axis_label(a)}")
+        ]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Serialise (the coupling included, so the file needs no robot description)."""
+        return {
+            "kind": self.kind,
+            "n_joints": self.n_joints,
+            "coupling": self.coupling.tolist(),
+            "parameters": self.parameters.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ModelCoordinateFriction:
+        """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field.
+
+        The coupling must be an ``n_model x n_joints`` matrix of finite numbers with full
+        column rank, the parameters two finite numbers per distinct row direction.
+        """
+        if not isinstance(data, dict):
+            raise ModelFileError(f"expected an object, got {type(data).__name__}")
+        field = "n_joints"
+        try:
+            n_joints = file_int(data["n_joints"], field, 1, MAX_JOINTS)
+            field = "coupling"
+            coupling = file_floats(data["coupling"], field)
+            if coupling.ndim != 2 or coupling.shape[1] != n_joints:
+                raise ModelFileError(
+                    f"expected rows of {n_joints} numbers, got shape {coupling.shape}"
+                )
+            if not 1 <= coupling.shape[0] <= MAX_MODEL_JOINTS:
+                raise ModelFileError(
+                    f"expected 1..{MAX_MODEL_JOINTS} rows, got {coupling.shape[0]}"
+                )
+            model = cls(coupling)
+            field = "parameters"
+            parameters = file_floats(data["parameters"], field)
+            if parameters.shape != model.parameters.shape:
+                raise ModelFileError(
+                    f"expected {model.parameters.size} numbers (2 per distinct coupling"
+                    f" direction), got shape {parameters.shape}"
+                )
+            model.parameters = parameters.copy()
+        except FILE_ERRORS as exc:
+            raise file_error(exc, field, "model-coordinate friction") from None
+        return model
+
+    def _not_per_joint(self) -> str:
+        return (
+            f"{self.kind}: friction acts through the coupling, a parameter on several joints;"
+            " it has no per-joint basis (use regressor() / torque())"
+        )
