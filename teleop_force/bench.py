@@ -400,28 +400,52 @@ def _messaging_skipped() -> dict[str, Any]:
 
 def add_bench_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``teleop-force bench`` to ``parser``."""
-    parser.add_argument(
-        "--json", action="store_true", help="print the figures as one JSON object"
-    )
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     parser.add_argument(
         "--quick", action="store_true", help="short run at small sizes (smoke test)"
     )
-    parser.add_argument("--only", default=None, metavar="PART[,PART]",
-                        help="run only these parts: " + ", ".join(PARTS) + " (identification "
-                        "always runs: it makes the benchmark model); e.g. --only identification")
+    parser.add_argument(
+        "--only",
+        default=None,
+        metavar="PART[,PART]",
+        help="run only these parts: " + ", ".join(PARTS) + " (identification "
+        "always runs: it makes the benchmark model); e.g. --only identification",
+    )
     parser.add_argument("--no-messaging", action="store_true", help="skip the demo (latency, loss)")
     parser.add_argument("--no-replay", action="store_true", help="skip the replay figures")
-    parser.add_argument("--messaging-duration", type=float, default=None, metavar="S",
-                        help="seconds the demo runs (default 60; 5 with --quick)")
-    parser.add_argument("--messaging-model", choices=("bench", "shipped"), default="bench",
-                        help="model of the demo's service: the benchmark's WN model or the "
-                        "shipped one")
-    parser.add_argument("--identify-samples", type=int, default=None, metavar="N",
-                        help="samples of the identification figures (default 240000)")
-    parser.add_argument("--estimate-samples", type=int, default=None, metavar="N",
-                        help="timed estimation steps (default 20000)")
-    parser.add_argument("--work-dir", default=None, metavar="DIR",
-                        help="keep the generated models and sessions in DIR")
+    parser.add_argument(
+        "--messaging-duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="seconds the demo runs (default 60; 5 with --quick)",
+    )
+    parser.add_argument(
+        "--messaging-model",
+        choices=("bench", "shipped"),
+        default="bench",
+        help="model of the demo's service: the benchmark's WN model or the shipped one",
+    )
+    parser.add_argument(
+        "--identify-samples",
+        type=int,
+        default=None,
+        metavar="N",
+        help="samples of the identification figures (default 240000)",
+    )
+    parser.add_argument(
+        "--estimate-samples",
+        type=int,
+        default=None,
+        metavar="N",
+        help="timed estimation steps (default 20000)",
+    )
+    parser.add_argument(
+        "--work-dir",
+        default=None,
+        metavar="DIR",
+        help="keep the generated models and sessions in DIR",
+    )
 
 
 def options_from_args(args: argparse.Namespace) -> BenchOptions:

@@ -117,4 +117,3 @@ def stopwatch() -> Iterator[Stopwatch]:
     finally:
         watch.wall_s = time.perf_counter() - wall
         watch.cpu_s = time.process_time() - cpu
-

@@ -57,7 +57,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     )
     model.save(args.output)
     _log(report.rigid.table())
-    _log("training relative RMS per joint: " + ", ".join(f"{x:.2%}" for x in report.friction_relative_rms))
+    _log(
+        "training relative RMS per joint: "
+        + ", ".join(f"{x:.2%}" for x in report.friction_relative_rms)
+    )
     for key, value in report.details.items():
         _log(f"{key}: {value}")
     _log(f"model written to {args.output}")
@@ -82,7 +85,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         print(json.dumps(payload))
     else:
         for j, value in enumerate(payload["relative_rms"]):
-            print(f"joint {j + 1}: relative RMS {value:.2%}, on trained ground {payload['coverage'][j]:.0%}")
+            print(
+                f"joint {j + 1}: relative RMS {value:.2%}, "
+                f"on trained ground {payload['coverage'][j]:.0%}"
+            )
         print(f"samples: {payload['samples']}")
     return EXIT_OK
 
@@ -96,7 +102,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     estimator = ForceEstimator(model)
     forces = np.empty((recording.t_s.size, 3))
     for k in range(recording.t_s.size):
-        forces[k] = estimator.update(recording.t_s[k], recording.q_rad[k], recording.tau_nm[k]).force_tip_in_base_n
+        forces[k] = estimator.update(
+            recording.t_s[k], recording.q_rad[k], recording.tau_nm[k]
+        ).force_tip_in_base_n
     table = np.column_stack((recording.t_s, forces))
     np.savetxt(args.output, table, delimiter=",", header="t,f_x,f_y,f_z", comments="", fmt="%.9g")
     _log(f"{recording.t_s.size} estimates written to {args.output}")
@@ -118,10 +126,16 @@ def _cmd_residual(args: argparse.Namespace) -> int:
         print(json.dumps(report.to_json()))
     else:
         for j in range(report.before.size):
-            print(f"joint {j + 1}: held-out relative RMS {report.before[j]:.2%} -> {report.after[j]:.2%}")
+            print(
+                f"joint {j + 1}: held-out relative RMS "
+                f"{report.before[j]:.2%} -> {report.after[j]:.2%}"
+            )
         for effect in report.effects:
             e = effect.to_json()
-            print(f"  + {e['description']}: {e['kind']}, explains {e['explained']:.1%} of joint {e['joint']}'s residual")
+            print(
+                f"  + {e['description']}: {e['kind']}, "
+                f"explains {e['explained']:.1%} of joint {e['joint']}'s residual"
+            )
         if not report.effects:
             print("no significant effect found")
     return EXIT_OK
@@ -200,8 +214,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                 source="replay",
             )
             service = ForceService(session, model, service_config, model_path=model_path).start()
-        _log(f"replaying {config.path} (device {device}) at "
-             + ("full speed" if speed == 0.0 else f"x{speed:g}"))
+        _log(
+            f"replaying {config.path} (device {device}) at "
+            + ("full speed" if speed == 0.0 else f"x{speed:g}")
+        )
         result = replay_session(session, config, stop)
         payload: dict[str, Any] = result.to_dict()
         if service is not None:
@@ -218,13 +234,17 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             service.close()
         session.close()
     total = sum(result.published.values())
-    _log(f"published {total} messages in {result.duration_s:.2f} s "
-         f"(recorded span {result.recorded_span_s:.2f} s)")
+    _log(
+        f"published {total} messages in {result.duration_s:.2f} s "
+        f"(recorded span {result.recorded_span_s:.2f} s)"
+    )
     if service is not None:
         stats = payload["service"]
-        _log(f"service: {stats['estimates']['published']} estimates, "
-             f"{stats['joint_states']['lost']} joint states lost"
-             + (f", recorded to {args.record}" if args.record else ""))
+        _log(
+            f"service: {stats['estimates']['published']} estimates, "
+            f"{stats['joint_states']['lost']} joint states lost"
+            + (f", recorded to {args.record}" if args.record else "")
+        )
     if args.json:
         print(json.dumps(payload))
     return EXIT_OK
@@ -267,19 +287,27 @@ def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``teleop-force``."""
+    """Build the argument parser of ``teleop-force``."""
     parser = argparse.ArgumentParser(prog="teleop-force", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("identify", help="identify rigid-body parameters and friction")
     p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
     p.add_argument("--robot", default="omni", help="omni (default), none, or a description file")
-    p.add_argument("--friction", choices=("cv", "coupled-cv", "model-cv", "wn"), default="wn",
-                   help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
-                   " reaching the motors through the coupling (closed chains, cables)")
-    p.add_argument("--wn-fit", choices=("adaptive", "batch"), default="batch",
-                   help="train the wavelet network by batch ridge least squares (default, as the"
-                   " library) or by the paper's Lyapunov adaptation")
+    p.add_argument(
+        "--friction",
+        choices=("cv", "coupled-cv", "model-cv", "wn"),
+        default="wn",
+        help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
+        " reaching the motors through the coupling (closed chains, cables)",
+    )
+    p.add_argument(
+        "--wn-fit",
+        choices=("adaptive", "batch"),
+        default="batch",
+        help="train the wavelet network by batch ridge least squares (default, as the"
+        " library) or by the paper's Lyapunov adaptation",
+    )
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(run=_cmd_identify)
 
@@ -295,11 +323,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(run=_cmd_estimate)
 
-    p = sub.add_parser("residual", help="find, trace and add what the model lacks; report before/after")
+    p = sub.add_parser(
+        "residual", help="find, trace and add what the model lacks; report before/after"
+    )
     p.add_argument("data", nargs="+")
     p.add_argument("--robot", default="omni")
-    p.add_argument("--friction", choices=("cv", "coupled-cv"), default="coupled-cv",
-                   help="friction of the model the residual is taken from")
+    p.add_argument(
+        "--friction",
+        choices=("cv", "coupled-cv"),
+        default="coupled-cv",
+        help="friction of the model the residual is taken from",
+    )
     p.add_argument("--json", action="store_true")
     p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
     p.set_defaults(run=_cmd_residual)
@@ -311,39 +345,81 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_report_robots)
 
     p = sub.add_parser("demo", help="master, slave, service and dashboard over Zenoh on loopback")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="run S seconds once everything is up (default: until Ctrl-C)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="run S seconds once everything is up (default: until Ctrl-C)",
+    )
     p.add_argument("--headless", action="store_true", help="do not start the dashboard")
-    p.add_argument("--port", type=int, default=8080, metavar="P",
-                   help="dashboard HTTP port (default 8080)")
-    p.add_argument("--zenoh-port", type=int, default=None, metavar="P",
-                   help="port of the Zenoh rendezvous endpoint on 127.0.0.1 (default: a free one)")
+    p.add_argument(
+        "--port", type=int, default=8080, metavar="P", help="dashboard HTTP port (default 8080)"
+    )
+    p.add_argument(
+        "--zenoh-port",
+        type=int,
+        default=None,
+        metavar="P",
+        help="port of the Zenoh rendezvous endpoint on 127.0.0.1 (default: a free one)",
+    )
     p.add_argument("--model", default=None, help="model JSON (default: the shipped omni_sim.json)")
     p.add_argument("--record-dir", default="recordings", help="where the session is recorded")
-    p.add_argument("--summary-json", default=None, metavar="PATH",
-                   help="write the final summary as JSON")
-    p.add_argument("--motion", choices=("palpation", "random"), default="palpation",
-                   help="what the simulated operator does with the master")
-    p.add_argument("--haptic-feedback", action="store_true",
-                   help="feed the estimated force back to the master")
-    p.add_argument("--contact-threshold", type=float, default=0.1, metavar="N",
-                   help="true force above which a sample counts as contact (default 0.1 N)")
+    p.add_argument(
+        "--summary-json", default=None, metavar="PATH", help="write the final summary as JSON"
+    )
+    p.add_argument(
+        "--motion",
+        choices=("palpation", "random"),
+        default="palpation",
+        help="what the simulated operator does with the master",
+    )
+    p.add_argument(
+        "--haptic-feedback", action="store_true", help="feed the estimated force back to the master"
+    )
+    p.add_argument(
+        "--contact-threshold",
+        type=float,
+        default=0.1,
+        metavar="N",
+        help="true force above which a sample counts as contact (default 0.1 N)",
+    )
     p.set_defaults(run=_cmd_demo)
 
     p = sub.add_parser("replay", help="publish a recorded session over Zenoh as if live")
     p.add_argument("recording", help="session .mcap")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
-                   help="time scale: 2 = twice as fast, 0 = as fast as possible (default 1)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="time scale: 2 = twice as fast, 0 = as fast as possible (default 1)",
+    )
     p.add_argument("--fast", action="store_true", help="as fast as possible (same as --speed 0)")
     p.add_argument("--device", default=None, help="primary device (default: from the recording)")
-    p.add_argument("--with-service", action="store_true",
-                   help="run the force-estimation service in this process on the replayed stream")
-    p.add_argument("--model", default=None,
-                   help="model for --with-service (default: the recording's, else the shipped one)")
-    p.add_argument("--record", default=None, metavar="PATH",
-                   help="with --with-service: record the replayed stream and the new estimates")
-    p.add_argument("--wait-subscribers", type=float, default=10.0, metavar="S",
-                   help="wait up to S s for a subscriber of the joint states before starting")
+    p.add_argument(
+        "--with-service",
+        action="store_true",
+        help="run the force-estimation service in this process on the replayed stream",
+    )
+    p.add_argument(
+        "--model",
+        default=None,
+        help="model for --with-service (default: the recording's, else the shipped one)",
+    )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="PATH",
+        help="with --with-service: record the replayed stream and the new estimates",
+    )
+    p.add_argument(
+        "--wait-subscribers",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="wait up to S s for a subscriber of the joint states before starting",
+    )
     p.add_argument("--no-wait", action="store_true", help="start at once")
     p.add_argument("--json", action="store_true", help="print what was published as JSON")
     add_zenoh_arguments(p)
@@ -355,15 +431,23 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_arguments(p)
     p.set_defaults(run=_cmd_bench)
 
-    p = sub.add_parser("experiments", help="reproduce the paper's experiments on the simulated Omni")
-    p.add_argument("-o", "--output", required=True, help="folder for report.md, report.json and figures")
-    p.add_argument("--duration", type=float, default=240.0, help="training session length [s] (paper: 240)")
+    p = sub.add_parser(
+        "experiments", help="reproduce the paper's experiments on the simulated Omni"
+    )
+    p.add_argument(
+        "-o", "--output", required=True, help="folder for report.md, report.json and figures"
+    )
+    p.add_argument(
+        "--duration", type=float, default=240.0, help="training session length [s] (paper: 240)"
+    )
     p.add_argument("--test-duration", type=float, default=60.0, help="test session length [s]")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_cmd_experiments)
 
-    p = sub.add_parser("residual-blind", help="blind tests of the residual loop on simulated effects")
+    p = sub.add_parser(
+        "residual-blind", help="blind tests of the residual loop on simulated effects"
+    )
     p.add_argument("-o", "--output", required=True, help="folder for blind.md and blind.json")
     p.add_argument("--duration", type=float, default=60.0, help="session length [s]")
     p.set_defaults(run=_cmd_residual_blind)

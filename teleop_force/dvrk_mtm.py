@@ -164,7 +164,8 @@ def _add_parallelogram(model: pin.Model, link_m: float = PARALLELOGRAM_LINK_M) -
     )
     # Nominal: a light bar ending in the counterweight behind the shoulder.
     model.appendBodyToJoint(
-        back, pin.Inertia(0.3, np.array([-0.05, 0.0, 0.0]), np.diag([2e-4, 2e-3, 2e-3])),
+        back,
+        pin.Inertia(0.3, np.array([-0.05, 0.0, 0.0]), np.diag([2e-4, 2e-3, 2e-3])),
         pin.SE3.Identity(),
     )
     placement = pin.SE3(np.eye(3), np.array([link_m, 0.0, 0.0])) * pin.SE3(
@@ -192,8 +193,13 @@ def dvrk_mtm_description(
         gravity_mps2=gravity_mps2,
         tip_frame="tip",
         joint_names=[
-            "outer_yaw", "shoulder_pitch", "elbow_pitch", "wrist_platform",
-            "wrist_pitch", "wrist_yaw", "wrist_roll",
+            "outer_yaw",
+            "shoulder_pitch",
+            "elbow_pitch",
+            "wrist_platform",
+            "wrist_pitch",
+            "wrist_yaw",
+            "wrist_roll",
         ],
         name="dvrk_mtm",
     )

@@ -41,6 +41,7 @@ class DynamicModel:
         effects: Effects found by the residual loop (JSON dicts understood by
             :mod:`teleop_force.effects`).
         notes: Free-form provenance (data files, figures at identification time).
+
     """
 
     robot: str
@@ -64,7 +65,7 @@ class DynamicModel:
             raise ModelError("offsets_nm needs one value per joint")
 
     def description(self) -> RobotDescription:
-        """The robot description this model was identified for."""
+        """Return the robot description this model was identified for."""
         return resolve_robot(self.robot, self.n_joints)
 
     def friction_torque(self, qd: np.ndarray, blend: bool = True) -> np.ndarray:
@@ -72,7 +73,9 @@ class DynamicModel:
         blended = getattr(self.friction, "blended_torque", None) if blend else None
         return blended(qd) if blended is not None else self.friction.torque(qd)
 
-    def effects_torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray) -> np.ndarray:
+    def effects_torque(
+        self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray
+    ) -> np.ndarray:
         """Torque of the found effects (N x n); ``load`` is the filtered rigid-body model torque."""
         total = np.zeros_like(np.asarray(q, dtype=float))
         for effect in self.effects:
@@ -82,7 +85,7 @@ class DynamicModel:
     def predict_filtered_torque(
         self, signals: FilteredSignals, tau_nm: np.ndarray, blend: bool = True
     ) -> np.ndarray:
-        """The filtered model torque ``tau_hat_L`` of the paper's eq. (10) for a recording."""
+        """Return the filtered model torque ``tau_hat_L`` (the paper's eq. (10)) of a recording."""
         t = signals.t_s
         rigid = np.einsum("kjp,p->kj", signals.rigid_regressor, self.base_values)
         other = self.friction_torque(signals.qd_rad_s, blend) + self.offsets_nm[None, :]

@@ -26,7 +26,9 @@ MODULATIONS = ("none", "sign", "positive", "both")
 _VARIABLE = re.compile(r"^(t|q(\d+)-q(\d+)|q(\d+)|qd(\d+)|tau(\d+))$")
 
 
-def variable_values(name: str, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+def variable_values(
+    name: str, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
     """Values of the named variable at every sample (``t`` is time since the first sample)."""
     match = _VARIABLE.match(name)
     if match is None:
@@ -64,6 +66,7 @@ class BasisSpec:
         frequency: Base spatial frequency [rad/unit of x] (``periodic``).
         harmonics: Harmonics (``periodic``).
         scales: Velocity scales (``stribeck``).
+
     """
 
     joint: int
@@ -204,7 +207,12 @@ class FoundEffect:
         """Serialise."""
         spec = asdict(self.spec)
         spec["scales"] = list(self.spec.scales)
-        return {"kind": "basis", "spec": spec, "coefficients": self.coefficients.tolist(), "explained": self.explained}
+        return {
+            "kind": "basis",
+            "spec": spec,
+            "coefficients": self.coefficients.tolist(),
+            "explained": self.explained,
+        }
 
 
 def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
@@ -213,4 +221,8 @@ def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
         raise ModelError("effect entry is not a basis effect")
     spec = dict(data["spec"])
     spec["scales"] = tuple(spec.get("scales", ()))
-    return FoundEffect(BasisSpec(**spec), np.asarray(data["coefficients"], dtype=float), float(data.get("explained", 0.0)))
+    return FoundEffect(
+        BasisSpec(**spec),
+        np.asarray(data["coefficients"], dtype=float),
+        float(data.get("explained", 0.0)),
+    )

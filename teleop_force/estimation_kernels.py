@@ -110,7 +110,7 @@ class CoverageLookup:
             bx, by = math.floor(cx), math.floor(cy)
             fx, fy = cx - bx, cy - by
             nx, ny = shape
-            if 0 <= bx and bx + 1 < nx and 0 <= by and by + 1 < ny:  # inside: four corners
+            if bx >= 0 and bx + 1 < nx and by >= 0 and by + 1 < ny:  # inside: four corners
                 row = bx * ny + by
                 gx = 1.0 - fx
                 total = (1.0 - fy) * (gx * values[row] + fx * values[row + ny]) + fy * (

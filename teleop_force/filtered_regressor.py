@@ -49,7 +49,9 @@ class FilterConfig:
         if not self.cutoff_hz > 0:
             raise ConfigurationError(f"cutoff_hz must be > 0, got {self.cutoff_hz}")
         if not self.velocity_cutoff_hz > 0:
-            raise ConfigurationError(f"velocity_cutoff_hz must be > 0, got {self.velocity_cutoff_hz}")
+            raise ConfigurationError(
+                f"velocity_cutoff_hz must be > 0, got {self.velocity_cutoff_hz}"
+            )
         if self.torque_lag_samples not in (0, 1):
             raise ConfigurationError("torque_lag_samples must be 0 or 1")
         if self.warmup_s < 0:

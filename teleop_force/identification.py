@@ -20,6 +20,7 @@ class Identification:
         condition_number: Condition number of the column-scaled regressor.
         relative_rms: Relative RMS of the fitted torque per joint on the fitting data.
         samples: Number of time samples used.
+
     """
 
     parameter_names: tuple[str, ...]
@@ -40,7 +41,7 @@ class Identification:
             return self.standard_deviations / np.abs(self.parameters)
 
     def table(self, true_values: np.ndarray | None = None) -> str:
-        """The paper's Table I as markdown: value +- standard deviation (and truth if given)."""
+        """Render the paper's Table I as markdown: value +- std (and truth if given)."""
         head = "| # | parameter | value | std | rel. std |"
         rule = "|---|---|---|---|---|"
         if true_values is not None:
@@ -50,15 +51,17 @@ class Identification:
         rel = self.relative_standard_deviations()
         for i, name in enumerate(self.parameter_names):
             line = (
-                f"| a{i + 1} | `{name}` | {self.parameters[i]:.4e} | {self.standard_deviations[i]:.2e}"
-                f" | {rel[i]:.1%} |"
+                f"| a{i + 1} | `{name}` | {self.parameters[i]:.4e}"
+                f" | {self.standard_deviations[i]:.2e} | {rel[i]:.1%} |"
             )
             if true_values is not None:
                 err = abs(self.parameters[i] - true_values[i]) / max(abs(true_values[i]), 1e-300)
                 line += f" {true_values[i]:.4e} | {err:.1%} |"
             lines.append(line)
         lines.append("")
-        lines.append(f"condition number (column-scaled) {self.condition_number:.1f}; samples {self.samples}")
+        lines.append(
+            f"condition number (column-scaled) {self.condition_number:.1f}; samples {self.samples}"
+        )
         return "\n".join(lines)
 
 

@@ -70,7 +70,9 @@ def _is_uniform(dt: np.ndarray) -> bool:
     return bool(np.ptp(dt) <= 1e-9 * float(np.median(dt)))
 
 
-def lowpass_batch(x: np.ndarray, t_s: np.ndarray, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> np.ndarray:
+def lowpass_batch(
+    x: np.ndarray, t_s: np.ndarray, cutoff_hz: float = DEFAULT_CUTOFF_HZ
+) -> np.ndarray:
     """Filter ``x`` (time along axis 0) exactly as :class:`LowPass` would, sample by sample."""
     x = np.asarray(x, dtype=float)
     dt = sample_intervals(t_s)

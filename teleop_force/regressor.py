@@ -18,7 +18,9 @@ Since ``d/dt (M qd) = M qdd + Mdot qd`` and ``Mdot = C + C^T``, the torque is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import pinocchio as pin
@@ -41,7 +43,9 @@ def full_parameter_names(description: RobotDescription) -> list[str]:
     return names
 
 
-def full_parameters(description: RobotDescription, spring_stiffness: np.ndarray) -> np.ndarray:
+def full_parameters(
+    description: RobotDescription, spring_stiffness: np.ndarray | Sequence[float]
+) -> np.ndarray:
     """Full parameter vector of a description (its model's inertias) and given stiffnesses."""
     return np.concatenate(
         (
@@ -61,6 +65,7 @@ class BaseParameters:
         independent: Indices of the full parameters kept as base parameters (sorted).
         dependent: Indices of the others.
         dependency: ``K``, with ``Y[:, dependent] = Y[:, independent] @ K``.
+
     """
 
     full_names: tuple[str, ...]
@@ -102,12 +107,14 @@ class BaseParameters:
         return out
 
     def project(self, full: np.ndarray) -> np.ndarray:
-        """Base parameters of a full parameter vector."""
+        """Project a full parameter vector onto the base parameters."""
         return full[self.independent] + self.dependency @ full[self.dependent]
 
     def representative(self, base: np.ndarray, nominal_full: np.ndarray) -> np.ndarray:
-        """A full parameter vector with these base parameters, equal to ``nominal_full`` on the
-        dependent parameters (so masses stay non-zero)."""
+        """Return a full parameter vector with these base parameters.
+
+        It equals ``nominal_full`` on the dependent parameters (so masses stay non-zero).
+        """
         full = np.array(nominal_full, dtype=float)
         full[self.independent] = base - self.dependency @ full[self.dependent]
         return full
@@ -176,17 +183,23 @@ class RigidBodyRegressor:
         self._spring_joints = [s.joint for s in description.springs]
         self._spring_rest = [s.rest_angle_rad for s in description.springs]
 
-    def _links(self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    def _links(
+        self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray, a: np.ndarray
+    ) -> np.ndarray:
         t = self.coupling
         y = pin.computeJointTorqueRegressor(model, data, t @ q, t @ v, t @ a)
         return t.T @ y
 
-    def _assemble(self, links: np.ndarray, rotor_diag: np.ndarray, q: np.ndarray | None) -> np.ndarray:
+    def _assemble(
+        self, links: np.ndarray, rotor_diag: np.ndarray, q: np.ndarray | None
+    ) -> np.ndarray:
         y = np.zeros((self.n, self.n_parameters))
         y[:, : self.n_link_parameters] = links
         y[:, self.n_link_parameters : self.n_link_parameters + self.n] = np.diag(rotor_diag)
         if q is not None:
-            for col, (j, rest) in enumerate(zip(self._spring_joints, self._spring_rest, strict=True)):
+            for col, (j, rest) in enumerate(
+                zip(self._spring_joints, self._spring_rest, strict=True)
+            ):
                 y[j, self.n_link_parameters + self.n + col] = q[j] - rest
         return y
 
@@ -265,7 +278,8 @@ class RigidBodyRegressor:
                 (raw[3], model_ng, data_ng, list(behind), None, vm_rows),
             ):
                 if velocity is None:
-                    pairs = zip(positions, acceleration, strict=True)
+                    # the rows without velocity carry the acceleration
+                    pairs = zip(positions, cast(list[np.ndarray], acceleration), strict=True)
                     rows = [regressor(mdl, dat, a, zero, b) for a, b in pairs]
                 else:
                     pairs = zip(positions, velocity, strict=True)

@@ -2,11 +2,11 @@
 
 Every decision is made on held-out data: the valid samples of each recording are cut into
 ``folds * blocks_per_fold`` contiguous time blocks, dealt to ``folds`` folds in turn (so a
-sweep's every region is seen in training and in held-out data); a candidate effect is scored by blocked cross-validation
-(fit on the other blocks, error on the held-out block), computed from per-block normal
-equations so hundreds of candidates cost little. An effect is added only when it lowers the
-joint's held-out RMS by ``min_rms_gain`` (relative) and helps in most blocks; the search then
-repeats until nothing significant is left.
+sweep's every region is seen in training and in held-out data); a candidate effect is scored by
+blocked cross-validation (fit on the other blocks, error on the held-out block), computed from
+per-block normal equations so hundreds of candidates cost little. An effect is added only when
+it lowers the joint's held-out RMS by ``min_rms_gain`` (relative) and helps in most blocks; the
+search then repeats until nothing significant is left.
 
 Candidates are linear in their parameters (:mod:`teleop_force.effects`): smooth or periodic
 functions of any joint angle or angle difference (optionally direction-modulated: position
@@ -85,7 +85,7 @@ class TracedEffect:
     joint_rms_after: float
 
     def to_json(self) -> dict[str, Any]:
-        """The CONTRACT.md form."""
+        """Return the CONTRACT.md form."""
         return {
             "joint": self.spec.joint + 1,
             "depends_on": self.spec.depends_on(),
@@ -111,7 +111,7 @@ class ResidualReport:
     rejected: tuple[dict[str, Any], ...] = field(default_factory=tuple)
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON object of ``teleop-force residual --json``."""
+        """Return the JSON object of ``teleop-force residual --json``."""
         return {
             "before": [float(x) for x in self.before],
             "after": [float(x) for x in self.after],
@@ -124,7 +124,9 @@ class ResidualReport:
 class _Design:
     """Held-out scoring of candidate columns for one joint from per-fold normal equations."""
 
-    def __init__(self, base: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float) -> None:
+    def __init__(
+        self, base: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float
+    ) -> None:
         self.base = base
         self.y = y
         self.folds = folds
@@ -138,7 +140,13 @@ class _Design:
 
     def add(self, columns: np.ndarray) -> None:
         """Make ``columns`` part of the base."""
-        self.__init__(np.concatenate((self.base, columns), axis=1), self.y, self.folds, self.n_folds, self.ridge)  # type: ignore[misc]
+        self.__init__(  # type: ignore[misc]
+            np.concatenate((self.base, columns), axis=1),
+            self.y,
+            self.folds,
+            self.n_folds,
+            self.ridge,
+        )
 
     def _score(self, grams: list[np.ndarray], crosses: list[np.ndarray]) -> np.ndarray:
         g_all = sum(grams)
@@ -208,12 +216,17 @@ def _select_rows(
         load = np.einsum("kjp,p->kj", s.rigid_regressor, base_values)
         loads.append(load)
         tau.append(load)
-    raw = {"t": np.concatenate(t), "q": np.concatenate(q), "qd": np.concatenate(qd), "tau": np.concatenate(tau)}
+    raw = {
+        "t": np.concatenate(t),
+        "q": np.concatenate(q),
+        "qd": np.concatenate(qd),
+        "tau": np.concatenate(tau),
+    }
     return _Data(list(prepared), rows, np.concatenate(fold_ids), raw, loads)
 
 
 def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
-    """The candidate's basis, low-pass filtered per recording, at the selected rows (cached)."""
+    """Low-pass filter the candidate's basis per recording, at the selected rows (cached)."""
     cached = data.cache.get(spec)
     if cached is not None:
         return cached
@@ -228,7 +241,11 @@ def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
 
 
 def _joint_base(
-    data: _Data, friction: FrictionModel, joint: int, offsets: bool, network: FrictionModel | None = None
+    data: _Data,
+    friction: FrictionModel,
+    joint: int,
+    offsets: bool,
+    network: FrictionModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     cols, ys = [], []
     for item, idx in zip(data.prepared, data.rows, strict=True):
@@ -255,11 +272,25 @@ def _candidates(
     has_offsets: bool,
     velocity_covered: tuple[int, ...] = (),
 ) -> list[BasisSpec]:
-    """Candidate effects for one joint (``velocity_covered``: velocities the friction already maps)."""
+    """List candidate effects for one joint.
+
+    ``velocity_covered``: velocities the friction already maps.
+    """
     raw = data.raw
     specs: list[BasisSpec] = []
-    names = [f"q{i + 1}" for i in range(n)] + [f"q{a + 1}-q{b + 1}" for a in range(n) for b in range(a + 1, n)]
-    selected = np.concatenate([idx + offset for idx, offset in zip(data.rows, np.cumsum([0] + [p.signals.n_samples for p in data.prepared[:-1]]), strict=True)])
+    names = [f"q{i + 1}" for i in range(n)] + [
+        f"q{a + 1}-q{b + 1}" for a in range(n) for b in range(a + 1, n)
+    ]
+    selected = np.concatenate(
+        [
+            idx + offset
+            for idx, offset in zip(
+                data.rows,
+                np.cumsum([0] + [p.signals.n_samples for p in data.prepared[:-1]]),
+                strict=True,
+            )
+        ]
+    )
     for name in names:
         x = variable_values(name, raw["t"], raw["q"], raw["qd"], raw["tau"])
         lo, hi = np.percentile(x, [0.5, 99.5])
@@ -272,7 +303,16 @@ def _candidates(
             specs.append(BasisSpec(joint, name, "smooth", "both", float(lo), float(hi), count))
         frequency = _dominant_frequency(x[selected], residual, float(hi - lo))
         if frequency is not None:
-            specs.append(BasisSpec(joint, name, "periodic", "none", frequency=frequency, harmonics=options.harmonics))
+            specs.append(
+                BasisSpec(
+                    joint,
+                    name,
+                    "periodic",
+                    "none",
+                    frequency=frequency,
+                    harmonics=options.harmonics,
+                )
+            )
     for k in range(n):
         if k == joint or k in velocity_covered:
             continue
@@ -286,7 +326,9 @@ def _candidates(
     specs.append(BasisSpec(joint, "t", "linear", "none"))
     specs.append(BasisSpec(joint, "t", "linear", "sign"))
     if joint not in velocity_covered:
-        specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
+        specs.append(
+            BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3))
+        )
     if not has_offsets:
         specs.append(BasisSpec(joint, "t", "constant", "none"))
     specs.append(BasisSpec(joint, "t", "constant", "positive"))
@@ -359,7 +401,9 @@ def _velocity_controls(data: _Data, joint: int, covered: tuple[int, ...]) -> lis
         specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "none", float(lo), float(hi), 8))
         specs.append(BasisSpec(joint, f"qd{k + 1}", "smooth", "sign", float(lo), float(hi), 8))
     if joint in covered:
-        specs.append(BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3)))
+        specs.append(
+            BasisSpec(joint, f"qd{joint + 1}", "stribeck", "sign", scales=(0.03, 0.1, 0.3))
+        )
     return specs
 
 
@@ -411,7 +455,15 @@ def trace_residual(
             + [_nuisance_columns(data, j, description), _reversal_columns(data, j)],
             axis=1,
         )
-        controls.append(_Design(np.concatenate((design.base, extra), axis=1), design.y, data.folds, options.folds, options.ridge))
+        controls.append(
+            _Design(
+                np.concatenate((design.base, extra), axis=1),
+                design.y,
+                data.folds,
+                options.folds,
+                options.ridge,
+            )
+        )
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()
     accepted: list[TracedEffect] = []
@@ -419,7 +471,7 @@ def trace_residual(
     rejected: list[dict[str, Any]] = []
     plots: list[dict[str, Any]] = []
     for _ in range(options.max_effects):
-        best: tuple[float, int, BasisSpec, np.ndarray, np.ndarray] | None = None
+        best: tuple[float, int, BasisSpec, np.ndarray, np.ndarray, float] | None = None
         for j, design in enumerate(designs):
             base_errors = design.held_out_errors()
             theta = np.linalg.lstsq(design.base, design.y, rcond=None)[0]
@@ -434,7 +486,13 @@ def trace_residual(
                 if gain >= options.min_rms_gain and wins >= options.min_fold_wins:
                     control_gain = _control_gain(controls[j], cols)
                     if control_gain < options.min_control_gain:
-                        rejected.append({"effect": spec.describe(), "gain": float(gain), "control_gain": control_gain})
+                        rejected.append(
+                            {
+                                "effect": spec.describe(),
+                                "gain": float(gain),
+                                "control_gain": control_gain,
+                            }
+                        )
                         continue
                     score = gain
                     if best is None or score > best[0]:
@@ -447,7 +505,14 @@ def trace_residual(
         explained = 1.0 - errors.sum() / max(base_errors.sum(), 1e-300)
         after_j = design.relative_rms(errors)
         accepted.append(TracedEffect(spec, float(explained), float(current[j]), after_j))
-        history.append({"effect": spec.describe(), "kind": spec.kind, "gain": float(gain), "control_gain": control_gain})
+        history.append(
+            {
+                "effect": spec.describe(),
+                "kind": spec.kind,
+                "gain": float(gain),
+                "control_gain": control_gain,
+            }
+        )
         plots.append(_plot_data(data, design, spec, cols))
         design.add(cols)
         control = controls[j]
@@ -455,23 +520,38 @@ def trace_residual(
             control.add(cols)
         current[j] = after_j
     model = _final_model(
-        prepared, description, base, friction, [e.spec for e in accepted], config, offsets, accepted,
+        prepared,
+        description,
+        base,
+        friction,
+        [e.spec for e in accepted],
+        config,
+        offsets,
+        accepted,
         stage_one[: 0 if base is None else base.count],
     )
     if network is not None:
         model = _with_network(model, prepared, description)
     return ResidualReport(
-        before, current, tuple(accepted), model, int(data.folds.size), tuple(history), {"effects": plots},
+        before,
+        current,
+        tuple(accepted),
+        model,
+        int(data.folds.size),
+        tuple(history),
+        {"effects": plots},
         tuple(rejected),
     )
 
 
 def _nuisance_columns(data: _Data, joint: int, description: RobotDescription) -> np.ndarray:
-    """The rigid-body fit's nuisance friction terms of ``joint`` (coupled inputs included)."""
+    """Return the rigid-body fit's nuisance friction terms of ``joint`` (coupled inputs too)."""
     out = []
     for item, idx in zip(data.prepared, data.rows, strict=True):
         s = item.signals
-        phi, _ = nuisance_friction_basis(s.qd_rad_s, joint, description.friction_inputs, RigidBodyFitOptions())
+        phi, _ = nuisance_friction_basis(
+            s.qd_rad_s, joint, description.friction_inputs, RigidBodyFitOptions()
+        )
         out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
     return np.concatenate(out)
 
@@ -485,7 +565,7 @@ def _control_gain(control: _Design | None, cols: np.ndarray) -> float:
     return float(1.0 - np.sqrt(errors.sum() / max(base_errors.sum(), 1e-300)))
 
 
-def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:
     """Parameters of the stage-one fit (rigid body, CV friction, offsets) on all data."""
     from teleop_force.model_fitting import _stack_regressor
 
@@ -493,8 +573,8 @@ def _stage_one_fit(prepared, base, friction, offsets) -> np.ndarray:  # type: ig
     return least_squares(regressor, torque, [f"p{i}" for i in range(regressor.shape[2])]).parameters
 
 
-def _baseline_network(prepared, description, base, friction, offsets, theta):  # type: ignore[no-untyped-def]
-    """The batch-fitted wavelet network of the model the residual is taken from."""
+def _baseline_network(prepared, description, base, friction, offsets, theta):
+    """Return the batch-fitted wavelet network of the model the residual is taken from."""
     from teleop_force.model_fitting import WaveletOptions
     from teleop_force.wavelet_training import train_wavelet_network
 
@@ -510,9 +590,10 @@ def _baseline_network(prepared, description, base, friction, offsets, theta):  #
     return network
 
 
-def _with_network(model: DynamicModel, prepared: Sequence[PreparedRecording], description: RobotDescription) -> DynamicModel:
+def _with_network(
+    model: DynamicModel, prepared: Sequence[PreparedRecording], description: RobotDescription
+) -> DynamicModel:
     """Retrain the wavelet network on what the rigid body, offsets and effects leave."""
-
     from teleop_force.model_fitting import WaveletOptions
     from teleop_force.wavelet_training import train_wavelet_network
 
@@ -526,7 +607,12 @@ def _with_network(model: DynamicModel, prepared: Sequence[PreparedRecording], de
     if not isinstance(fallback, CoupledCoulombViscous):
         return model
     network, _ = train_wavelet_network(
-        prepared, description, model.base_values, model.offsets_nm, fallback, WaveletOptions("batch"),
+        prepared,
+        description,
+        model.base_values,
+        model.offsets_nm,
+        fallback,
+        WaveletOptions("batch"),
         known_torque_l=known,
     )
     return replace(model, friction=network)
@@ -547,7 +633,9 @@ def _plot_data(data: _Data, design: _Design, spec: BasisSpec, cols: np.ndarray) 
     return {"spec": spec, "x": x, "before": before, "after": after}
 
 
-def _final_model(prepared, description, base, friction, specs, config, offsets, accepted, load_values) -> DynamicModel:  # type: ignore[no-untyped-def]
+def _final_model(
+    prepared, description, base, friction, specs, config, offsets, accepted, load_values
+) -> DynamicModel:
     """Refit rigid body, friction and all effects together on all data.
 
     The effects' load variable is the rigid-body torque of ``load_values`` (stage one); the
@@ -568,14 +656,18 @@ def _final_model(prepared, description, base, friction, specs, config, offsets, 
         a[:, :, :r] = s.rigid_regressor[v]
         for j in range(n):
             sl = friction.joint_slice(j)
-            a[:, j, r + sl.start : r + sl.stop] = lowpass_batch(friction.basis(j, s.qd_rad_s), s.t_s, config.cutoff_hz)[v]
+            a[:, j, r + sl.start : r + sl.stop] = lowpass_batch(
+                friction.basis(j, s.qd_rad_s), s.t_s, config.cutoff_hz
+            )[v]
         col = r + p_f
         if offsets:
             a[:, :, col : col + n] = np.eye(n)
             col += n
         load = np.einsum("kjp,p->kj", s.rigid_regressor, load_values)
         for spec in specs:
-            phi = lowpass_batch(spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load), s.t_s, config.cutoff_hz)
+            phi = lowpass_batch(
+                spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load), s.t_s, config.cutoff_hz
+            )
             a[:, spec.joint, col : col + spec.size] = phi[v]
             col += spec.size
         blocks.append(a)

@@ -86,17 +86,22 @@ def run_blind_tests(
         session = rigid_body_protocol(duration_s, seed, effects=plant_effects)
         recording = Recording(session.t_s, session.q_rad, session.tau_nm)
         report = trace_residual([recording], description)
-        found = tuple(
-            {**e.to_json(), "variable": e.spec.variable} for e in report.effects
-        )
+        found = tuple({**e.to_json(), "variable": e.spec.variable} for e in report.effects)
         joint, variables = EXPECTED.get(name, (None, ()))  # clean and DECLARED: nothing
         case = BlindCase(
-            name, joint, variables, found, tuple(report.before), tuple(report.after),
+            name,
+            joint,
+            variables,
+            found,
+            tuple(report.before),
+            tuple(report.after),
             tuple(report.history),
             max(report.rejected, key=lambda r: r["gain"], default=None),
         )
-        log(f"{name}: {'PASS' if case.passed else 'FAIL'} in {perf_counter() - started:.0f} s;"
-            f" found {[f['description'] for f in found]}")
+        log(
+            f"{name}: {'PASS' if case.passed else 'FAIL'} in {perf_counter() - started:.0f} s;"
+            f" found {[f['description'] for f in found]}"
+        )
         cases.append(case)
     return cases
 
@@ -114,7 +119,8 @@ def write_blind_report(cases: list[BlindCase], folder: Path) -> Path:
     lines = [
         "# Residual loop: blind tests on simulated data",
         "",
-        "Each session: the rigid-body protocol of IV-A (4 sinusoids per joint, 0.5-2 Hz), one undeclared effect switched on",
+        "Each session: the rigid-body protocol of IV-A (4 sinusoids per joint, 0.5-2 Hz),"
+        " one undeclared effect switched on",
         "in the plant; the tool is told nothing. Held-out relative RMS of the effect's joint.",
         "",
         "| plant effect | named joint | depends on | kind | joint before | joint after |"
@@ -137,8 +143,7 @@ def write_blind_report(cases: list[BlindCase], folder: Path) -> Path:
         after = c.after[j] if joint else min(c.after)
         label = f"joint {joint}" if joint else "all joints (min)"
         gains = (
-            f"{c.history[0]['gain']:.1%} ({c.history[0]['control_gain']:.1%})"
-            if c.history else "-"
+            f"{c.history[0]['gain']:.1%} ({c.history[0]['control_gain']:.1%})" if c.history else "-"
         )
         lines.append(
             f"| {c.effect} | {named[0]} | {named[1]} | {named[2]} | {before:.2%} ({label}) |"
@@ -155,5 +160,9 @@ def write_blind_report(cases: list[BlindCase], folder: Path) -> Path:
     if notes:
         lines += ["", *notes]
     (folder / "blind.md").write_text("\n".join(lines) + "\n")
-    (folder / "blind.json").write_text(json.dumps([c.__dict__ | {"passed": c.passed} for c in cases], indent=1, default=_json_default))
+    (folder / "blind.json").write_text(
+        json.dumps(
+            [c.__dict__ | {"passed": c.passed} for c in cases], indent=1, default=_json_default
+        )
+    )
     return folder / "blind.md"

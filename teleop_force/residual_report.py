@@ -10,7 +10,9 @@ import numpy as np
 from teleop_force.residual import ResidualReport
 
 
-def write_residual_report(report: ResidualReport, folder: Path, joint_names: list[str] | None = None) -> Path:
+def write_residual_report(
+    report: ResidualReport, folder: Path, joint_names: list[str] | None = None
+) -> Path:
     """Write ``report.json``, ``report.md``, ``model.json`` and plots into ``folder``."""
     import matplotlib
 
@@ -49,12 +51,15 @@ def write_residual_report(report: ResidualReport, folder: Path, joint_names: lis
     if not report.effects:
         lines.append("None: nothing lowered the held-out error significantly.")
     else:
-        lines += ["| # | joint | depends on | kind | explained | joint RMS before | after |", "|---|---|---|---|---|---|---|"]
+        lines += [
+            "| # | joint | depends on | kind | explained | joint RMS before | after |",
+            "|---|---|---|---|---|---|---|",
+        ]
     for k, effect in enumerate(report.effects):
         e = effect.to_json()
         lines.append(
-            f"| {k + 1} | {e['joint']} | {', '.join(e['depends_on'])} | {e['kind']} | {e['explained']:.1%} |"
-            f" {e['joint_rms_before']:.2%} | {e['joint_rms_after']:.2%} |"
+            f"| {k + 1} | {e['joint']} | {', '.join(e['depends_on'])} | {e['kind']}"
+            f" | {e['explained']:.1%} | {e['joint_rms_before']:.2%} | {e['joint_rms_after']:.2%} |"
         )
     for k, item in enumerate(report.plots.get("effects", [])):
         spec = item["spec"]

@@ -56,6 +56,7 @@ class RobotDescription:
         friction_inputs: For each joint, the motor velocities its friction depends on.
         q_min_rad, q_max_rad: Reachable joint range (motor coordinates).
         joint_names: Names used in tables and reports.
+
     """
 
     name: str
@@ -96,9 +97,12 @@ class RobotDescription:
             )
         if self.model is None and coupling.shape[0] != n:
             raise ModelError(f"{self.name}: coupling must be {n}x{n}, got {coupling.shape}")
-        if self.model is not None and self.tip_frame is not None:
-            if not self.model.existFrame(self.tip_frame):
-                raise ModelError(f"{self.name}: no frame named {self.tip_frame!r} in the model")
+        if (
+            self.model is not None
+            and self.tip_frame is not None
+            and not self.model.existFrame(self.tip_frame)
+        ):
+            raise ModelError(f"{self.name}: no frame named {self.tip_frame!r} in the model")
         rotor = np.asarray(self.rotor_inertia_kgm2, dtype=float).reshape(-1)
         if rotor.shape != (n,):
             raise ModelError(f"{self.name}: rotor_inertia_kgm2 needs {n} values")
@@ -165,18 +169,17 @@ class RobotDescription:
             model.inertias[j] = pin.Inertia.FromDynamicParameters(values[10 * (j - 1) : 10 * j])
         return _replace(self, model=model)
 
-    def with_rotor_inertia(self, rotor_inertia_kgm2: Sequence[float]) -> RobotDescription:
+    def with_rotor_inertia(
+        self, rotor_inertia_kgm2: Sequence[float] | np.ndarray
+    ) -> RobotDescription:
         """Return a copy with other rotor inertias."""
         return _replace(self, rotor_inertia_kgm2=np.asarray(rotor_inertia_kgm2, dtype=float))
 
 
 def _replace(description: RobotDescription, **changes: object) -> RobotDescription:
-    fields = {
-        name: getattr(description, name)
-        for name in RobotDescription.__dataclass_fields__  # type: ignore[attr-defined]
-    }
+    fields = {name: getattr(description, name) for name in RobotDescription.__dataclass_fields__}
     fields.update(changes)
-    return RobotDescription(**fields)  # type: ignore[arg-type]
+    return RobotDescription(**fields)
 
 
 class Robot:
@@ -211,7 +214,7 @@ class Robot:
         return self.data.oMf[self._require_tip()].translation.copy()
 
     def tip_jacobian_in_base(self, q: np.ndarray) -> np.ndarray:
-        """Translational Jacobian of the tip in the base frame, d p / d q_motor (3 x n)."""
+        """Return the tip's translational Jacobian in the base frame, d p / d q_motor (3 x n)."""
         qm = self.to_model(q)
         tip = self._require_tip()
         j6 = pin.computeFrameJacobian(self.model, self.data, qm, tip, pin.LOCAL_WORLD_ALIGNED)
@@ -242,7 +245,11 @@ class Robot:
         """Torque of the description's springs for the given stiffnesses."""
         tau = np.zeros(self.n)
         if self._spring_rows.size:
-            np.add.at(tau, self._spring_rows, stiffness_nm_per_rad * (q[self._spring_rows] - self._spring_rest))
+            np.add.at(
+                tau,
+                self._spring_rows,
+                stiffness_nm_per_rad * (q[self._spring_rows] - self._spring_rest),
+            )
         return tau
 
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -269,6 +276,7 @@ class Robot:
         Raises:
             SingularityError: when the Jacobian's smallest singular value is below
                 ``sigma_min`` [m/rad].
+
         """
         jac = self.tip_jacobian_in_base(q)
         u, s, vt = np.linalg.svd(jac.T, full_matrices=False)

@@ -45,7 +45,7 @@ import tempfile
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 import pinocchio as pin
@@ -86,7 +86,7 @@ _DH_ROW_KEYS = {
 T = TypeVar("T")
 
 
-def _digits(value: object) -> int:
+def _digits(value: int) -> int:
     """Decimal digits of an int (without building its string, limited to 4300 digits)."""
     return len(str(abs(value))) if abs(value) < 10**4000 else int(abs(value).bit_length() * 0.30103)
 
@@ -119,7 +119,8 @@ class _Fields:
         try:
             out = float(value)  # an int beyond float64 overflows here
         except OverflowError:
-            problem = f"must be finite, got an integer of {_digits(value)} digits"
+            # only an int overflows float()
+            problem = f"must be finite, got an integer of {_digits(cast(int, value))} digits"
             raise self.error(field, problem) from None
         if not math.isfinite(out):
             raise self.error(field, f"must be finite, got {value!r}")

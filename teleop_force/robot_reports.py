@@ -95,9 +95,7 @@ def mtm_study(
     ):
         start = time.perf_counter()
         try:
-            model, report = identify_model(
-                [train.recording], candidate, friction, offsets=offsets
-            )
+            model, report = identify_model([train.recording], candidate, friction, offsets=offsets)
             result = evaluate_model(model, [test.recording])
         except (
             TeleopForceError,

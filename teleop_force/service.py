@@ -25,7 +25,8 @@ duplicates, malformed messages dropped (by key), estimates published, singular, 
 latency p50/p99/max [ms] (joint-state stamp -> estimate publish), processing time, rates, the
 fraction of estimates on trained ground, the model running (``model.path``), adaptation
 state, recording (``recording``: the open one or ``null``; ``last_recording``), controls,
-memory (``memory``: resident size and the trims of :class:`~teleop_force.process_memory.MemoryTrimmer`).
+memory (``memory``: resident size and the trims of
+:class:`~teleop_force.process_memory.MemoryTrimmer`).
 
 Bad input never stops the service: a malformed or wrong-version payload, a joint state with a
 value beyond :data:`MAX_ABS_JOINT_VALUE` or of the wrong joint count is counted under
@@ -78,6 +79,7 @@ from teleop_force.errors import (
 from teleop_force.estimation import ForceEstimator
 from teleop_force.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.process_memory import DEFAULT_TRIM_PERIOD_S, MemoryTrimmer
 from teleop_force.service_adaptation import OnlineAdaptation, adaptation_unavailable_reason
 from teleop_force.service_controls import (
     ControlError,
@@ -105,7 +107,6 @@ from teleop_force.service_transport import (
     reply_json,
     undeclare_all,
 )
-from teleop_force.process_memory import DEFAULT_TRIM_PERIOD_S, MemoryTrimmer
 from teleop_force.zenoh_session import open_session, options_from_args
 
 ROLE: Final = "service"

@@ -57,13 +57,17 @@ def _times(regressor: np.ndarray, values: np.ndarray) -> np.ndarray:
     return (np.ascontiguousarray(regressor).reshape(-1, r) @ values).reshape(n_rows, n_joints)
 
 
-def wavelet_specs(description: RobotDescription, qd_max_rad_s: np.ndarray) -> list[WaveletJointSpec]:
+def wavelet_specs(
+    description: RobotDescription, qd_max_rad_s: np.ndarray
+) -> list[WaveletJointSpec]:
     """One network per joint over the velocity region seen in training (a 10 % margin)."""
     specs = []
     for inputs in description.friction_inputs:
         limit = tuple(max(0.2, 1.1 * float(qd_max_rad_s[i])) for i in inputs)
         m_min, m_max, mu, theta = _TABLE_IV.get(len(inputs), (-3, 0, 5e-5, 6e-5))
-        specs.append(WaveletJointSpec(inputs, tuple(-v for v in limit), limit, m_min, m_max, mu, theta))
+        specs.append(
+            WaveletJointSpec(inputs, tuple(-v for v in limit), limit, m_min, m_max, mu, theta)
+        )
     return specs
 
 
@@ -84,14 +88,18 @@ def train_wavelet_network(
     ``known_torque_l`` (one ``(N, n)`` array per recording) is filtered torque already explained
     by other terms (found effects), subtracted from the network's target.
     """
-    qd_max = np.max([np.max(np.abs(p.signals.qd_rad_s[p.signals.valid]), axis=0) for p in prepared], axis=0)
+    qd_max = np.max(
+        [np.max(np.abs(p.signals.qd_rad_s[p.signals.valid]), axis=0) for p in prepared], axis=0
+    )
     specs = wavelet_specs(description, qd_max)
     rate_hz = 1.0 / float(np.median(np.diff(prepared[0].signals.t_s)))
     coverage = CoverageMap.for_inputs(
         [s.inputs for s in specs],
         [s.x_min_rad_s for s in specs],
         [s.x_max_rad_s for s in specs],
-        CoverageConfig(untrained_density=UNTRAINED_CELL_S * rate_hz, trained_density=TRAINED_CELL_S * rate_hz),
+        CoverageConfig(
+            untrained_density=UNTRAINED_CELL_S * rate_hz, trained_density=TRAINED_CELL_S * rate_hz
+        ),
     )
     network = WaveletNetwork(description.n_joints, specs, fallback=fallback, coverage=coverage)
     details: dict[str, Any] = {"wn_method": options.method}
@@ -103,8 +111,13 @@ def train_wavelet_network(
             s = item.signals
             with single_threaded_blas():
                 rigid = _times(s.y_derivative, base_values) + _times(s.y_lowpassed, base_values)
-            target = s.tau_lowpassed_nm - extra - rigid - lowpass_batch(
-                np.broadcast_to(offsets_nm, s.qd_rad_s.shape), s.t_s, s.config.cutoff_hz
+            target = (
+                s.tau_lowpassed_nm
+                - extra
+                - rigid
+                - lowpass_batch(
+                    np.broadcast_to(offsets_nm, s.qd_rad_s.shape), s.t_s, s.config.cutoff_hz
+                )
             )
             t_all.append(s.t_s[s.valid] - s.t_s[0] + t_offset)
             t_offset = t_all[-1][-1] + float(np.median(np.diff(s.t_s)))
@@ -145,10 +158,10 @@ def train_wavelet_network(
             )
             u_l = s.tau_lowpassed_nm - extra - w_l
             v = s.valid
-            result = adapter.run(s.t_s[v], s.qd_rad_s[v], p_l[v], u_l[v])
-            wall += result.wall_time_s
-            samples += result.samples
-            sizes_history.append([int(x) for x in result.final_sizes])
+            run = adapter.run(s.t_s[v], s.qd_rad_s[v], p_l[v], u_l[v])
+            wall += run.wall_time_s
+            samples += run.samples
+            sizes_history.append([int(x) for x in run.final_sizes])
     details.update(
         wn_sizes=list(network.parameter_counts()),
         wn_sizes_history=sizes_history,

@@ -144,7 +144,9 @@ class ZenohOptions:
         if multicast is None and not from_file:
             multicast = False
         listen = self.listen
-        if listen is None and (not from_file or not isinstance(_json_value(config, "listen/endpoints"), list)):
+        if listen is None and (
+            not from_file or not isinstance(_json_value(config, "listen/endpoints"), list)
+        ):
             # A config file that names no listen endpoint leaves Zenoh's per-mode defaults
             # (a dict: every interface): the project listens on loopback unless asked otherwise.
             listen = DEFAULT_LISTEN

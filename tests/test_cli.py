@@ -57,7 +57,10 @@ BAD_FILES = {
     "missing_column.csv": ("t,q1,q2,q3,tau1,tau2\n0,0,0,0,0,0\n", "tau3"),
     "non_numeric.csv": ("t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,abc,0,0,0,0\n", "row 3"),
     "nan.csv": ("t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,0,nan,0,0,0\n", "row 3"),
-    "time.csv": ("t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n", "row 4"),
+    "time.csv": (
+        "t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n",
+        "row 4",
+    ),
     "empty.csv": ("", "empty"),
 }
 
@@ -78,7 +81,9 @@ def test_bad_input_exits_2_with_one_clear_line(tmp_path: Path, capsys, name: str
 def test_bad_model_file_names_the_field(tmp_path: Path, sessions, capsys) -> None:
     _, _, test = sessions
     model = tmp_path / "broken.json"
-    model.write_text(json.dumps({"format": "teleop-force-model", "version": 1, "robot": "omni", "n_joints": 3}))
+    model.write_text(
+        json.dumps({"format": "teleop-force-model", "version": 1, "robot": "omni", "n_joints": 3})
+    )
     assert main(["evaluate", str(model), str(test)]) == 2
     err = capsys.readouterr().err
     assert "broken.json" in err and "filter" in err
@@ -88,8 +93,18 @@ def test_console_script_reports_without_traceback(tmp_path: Path) -> None:
     path = tmp_path / "x.csv"
     path.write_text("t,q1\n")
     done = subprocess.run(
-        [sys.executable, "-m", "teleop_force.cli", "identify", str(path), "-o", str(tmp_path / "m.json")],
-        capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "teleop_force.cli",
+            "identify",
+            str(path),
+            "-o",
+            str(tmp_path / "m.json"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert done.returncode == 2
     assert "Traceback" not in done.stderr

@@ -66,9 +66,7 @@ def _motion(n: int = 1500):
         [0.3 * np.sin(2 * t), 0.8 + 0.4 * np.sin(3 * t), 0.2 + 0.5 * np.cos(1.5 * t)]
     )
     q = np.round(q / 4e-4) * 4e-4
-    tau = np.column_stack(
-        [0.05 * np.sin(5 * t), 0.2 + 0.05 * np.cos(t), 0.01 * np.sin(7 * t)]
-    )
+    tau = np.column_stack([0.05 * np.sin(5 * t), 0.2 + 0.05 * np.cos(t), 0.01 * np.sin(7 * t)])
     return t, q, tau
 
 

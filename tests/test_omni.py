@@ -20,21 +20,28 @@ def test_forward_kinematics_matches_conventions(robot: Robot) -> None:
     rng = np.random.default_rng(11)
     for _ in range(200):
         q = rng.uniform(Q_MIN_RAD, Q_MAX_RAD)
-        np.testing.assert_allclose(robot.tip_position_in_base(q), tip_position_formula(q), atol=1e-12)
+        np.testing.assert_allclose(
+            robot.tip_position_in_base(q), tip_position_formula(q), atol=1e-12
+        )
 
 
 def test_tip_jacobian_matches_conventions(robot: Robot) -> None:
     rng = np.random.default_rng(12)
     for _ in range(200):
         q = rng.uniform(Q_MIN_RAD, Q_MAX_RAD)
-        np.testing.assert_allclose(robot.tip_jacobian_in_base(q), tip_jacobian_formula(q), atol=1e-12)
+        np.testing.assert_allclose(
+            robot.tip_jacobian_in_base(q), tip_jacobian_formula(q), atol=1e-12
+        )
 
 
 def test_jacobian_formula_is_the_derivative_of_the_position() -> None:
     q = np.array([0.3, 0.7, 0.2])
     h = 1e-6
     numeric = np.column_stack(
-        [(tip_position_formula(q + h * e) - tip_position_formula(q - h * e)) / (2 * h) for e in np.eye(3)]
+        [
+            (tip_position_formula(q + h * e) - tip_position_formula(q - h * e)) / (2 * h)
+            for e in np.eye(3)
+        ]
     )
     np.testing.assert_allclose(tip_jacobian_formula(q), numeric, atol=1e-9)
 
@@ -43,9 +50,9 @@ def test_conventions_signs(robot: Robot) -> None:
     # q1 > 0 turns the arm toward -x; q2 > 0 raises link 1; q3 > 0 swings the tip toward the user.
     base = np.array([0.0, 0.5, 0.3])
     p0 = robot.tip_position_in_base(base)
-    assert robot.tip_position_in_base(base + [0.1, 0, 0])[0] < p0[0]
-    assert robot.tip_position_in_base(base + [0, 0.1, 0])[1] > p0[1]
-    assert robot.tip_position_in_base(base + [0, 0, 0.1])[2] > p0[2]
+    assert robot.tip_position_in_base(base + np.array([0.1, 0, 0]))[0] < p0[0]
+    assert robot.tip_position_in_base(base + np.array([0, 0.1, 0]))[1] > p0[1]
+    assert robot.tip_position_in_base(base + np.array([0, 0, 0.1]))[2] > p0[2]
 
 
 def test_gravity_pulls_down_and_mass_matrix_is_symmetric_positive(robot: Robot) -> None:

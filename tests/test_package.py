@@ -9,8 +9,15 @@ def test_all_is_sorted_and_importable() -> None:
 
 
 def test_every_error_is_a_teleop_force_error_and_a_builtin() -> None:
-    for name in ("DataError", "ModelError", "ModelFileError", "MessageError", "TransportError",
-                 "SingularityError", "ConfigurationError"):
+    for name in (
+        "DataError",
+        "ModelError",
+        "ModelFileError",
+        "MessageError",
+        "TransportError",
+        "SingularityError",
+        "ConfigurationError",
+    ):
         cls = getattr(errors, name)
         assert issubclass(cls, errors.TeleopForceError)
         assert any(issubclass(cls, b) for b in (ValueError, ConnectionError, ArithmeticError))

@@ -47,7 +47,12 @@ def test_base_parameters_are_independent_and_complete(setup) -> None:
     _, _, regressor, base = setup
     rng = np.random.default_rng(5)
     rows = np.vstack(
-        [regressor.standard(rng.uniform(Q_MIN_RAD, Q_MAX_RAD), rng.normal(size=3), rng.normal(size=3)) for _ in range(100)]
+        [
+            regressor.standard(
+                rng.uniform(Q_MIN_RAD, Q_MAX_RAD), rng.normal(size=3), rng.normal(size=3)
+            )
+            for _ in range(100)
+        ]
     )
     tol = 1e-10 * np.linalg.norm(rows, 2)
     assert np.linalg.matrix_rank(rows, tol=tol) == base.count
@@ -57,7 +62,7 @@ def test_base_parameters_are_independent_and_complete(setup) -> None:
 
 
 def test_momentum_and_coriolis_gravity_match_pinocchio(setup) -> None:
-    description, robot, regressor, base = setup
+    description, robot, regressor, _ = setup
     pi = full_parameters(description, K)
     for q, qd, _ in _states(3):
         p = robot.momentum(q, qd)
@@ -68,16 +73,22 @@ def test_momentum_and_coriolis_gravity_match_pinocchio(setup) -> None:
 
 def test_momentum_form_equals_inverse_dynamics(setup) -> None:
     # d/dt (M qd) - C^T qd + N == M qdd + C qd + N along a smooth trajectory.
-    description, robot, regressor, _ = setup
+    description, _, regressor, _ = setup
     pi = full_parameters(description, K)
     t0, h = 0.37, 1e-5
+
     def state(t):
         q = np.array([0.3 * np.sin(2 * t), 0.8 + 0.4 * np.sin(3 * t), 0.2 + 0.5 * np.cos(1.5 * t)])
         qd = np.array([0.6 * np.cos(2 * t), 1.2 * np.cos(3 * t), -0.75 * np.sin(1.5 * t)])
         qdd = np.array([-1.2 * np.sin(2 * t), -3.6 * np.sin(3 * t), -1.125 * np.cos(1.5 * t)])
         return q, qd, qdd
+
     q, qd, qdd = state(t0)
-    dp = (regressor.momentum(*state(t0 + h)[:2]) - regressor.momentum(*state(t0 - h)[:2])) / (2 * h) @ pi
+    dp = (
+        (regressor.momentum(*state(t0 + h)[:2]) - regressor.momentum(*state(t0 - h)[:2]))
+        / (2 * h)
+        @ pi
+    )
     lhs = dp + regressor.coriolis_gravity(q, qd) @ pi
     np.testing.assert_allclose(lhs, regressor.standard(q, qd, qdd) @ pi, atol=1e-8)
 
@@ -105,6 +116,7 @@ def _closed_chain(seed: int = 7):
     yaw = model.addJoint(0, pin.JointModelRZ(), pin.SE3.Identity(), "yaw")
     shoulder = pin.SE3(pin.utils.rotate("x", np.pi / 2), np.array([0.0, 0.0, 0.1]))
     upper = model.addJoint(yaw, pin.JointModelRZ(), shoulder, "upper")
+
     def along_x(length: float) -> pin.SE3:
         return pin.SE3(np.eye(3), np.array([length, 0.0, 0.0]))
 

@@ -14,7 +14,13 @@ from teleop_force.interchange_csv import Recording, write_interchange_csv
 from teleop_force.residual import ResidualOptions, trace_residual
 from teleop_force.robots import resolve_robot
 
-DATASET = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "dvrk_mtm" / "mtm_joint4_cable_test_results.csv"
+DATASET = (
+    Path(__file__).resolve().parents[1].parent
+    / "shared"
+    / "datasets"
+    / "dvrk_mtm"
+    / "mtm_joint4_cable_test_results.csv"
+)
 
 
 def _sweep(cable: bool, seed: int = 0) -> Recording:
@@ -75,7 +81,10 @@ def test_effect_basis_shapes_and_kinds() -> None:
 def test_residual_cli_json_contract(tmp_path: Path, capsys) -> None:
     path = tmp_path / "sweep.csv"
     write_interchange_csv(path, _sweep(cable=True))
-    assert main(["residual", str(path), "--robot", "none", "--json", "-o", str(tmp_path / "report")]) == 0
+    assert (
+        main(["residual", str(path), "--robot", "none", "--json", "-o", str(tmp_path / "report")])
+        == 0
+    )
     payload = json.loads(capsys.readouterr().out)
     assert len(payload["before"]) == len(payload["after"]) == 1
     assert payload["effects"][0]["kind"]
@@ -111,8 +120,25 @@ def test_friction_controls_reject_a_velocity_function_in_disguise() -> None:
     friction = 0.02 * np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / 0.3)
     y = friction + 1e-4 * rng.normal(size=t.size)
     base = np.stack([np.ones_like(t), np.sign(qd1), qd1], axis=1)
-    control = _Design(np.concatenate([base, np.stack([np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / s) for s in (0.1, 0.3, 1.0)], axis=1)], axis=1), y, folds, 5, 1e-8)
-    disguised = np.stack([np.sign(qd1) * np.exp(-((q1 - c) / 0.3) ** 2) for c in np.linspace(-1, 1, 6)], axis=1)
+    control = _Design(
+        np.concatenate(
+            [
+                base,
+                np.stack(
+                    [np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / s) for s in (0.1, 0.3, 1.0)],
+                    axis=1,
+                ),
+            ],
+            axis=1,
+        ),
+        y,
+        folds,
+        5,
+        1e-8,
+    )
+    disguised = np.stack(
+        [np.sign(qd1) * np.exp(-(((q1 - c) / 0.3) ** 2)) for c in np.linspace(-1, 1, 6)], axis=1
+    )
     plain = _Design(base, y, folds, 5, 1e-8)
     plain_gain = 1 - np.sqrt(plain.held_out_errors(disguised).sum() / plain.held_out_errors().sum())
     assert plain_gain > 0.2  # without the control it would be accepted
@@ -147,7 +173,7 @@ def test_reversal_controls_reject_a_reversal_transient_in_disguise() -> None:
     controls = reversal_transient_basis(t, q1, qd1)
     control = _Design(np.concatenate([base, controls], axis=1), y, folds, 5, 1e-8)
     centres = np.linspace(-1, 1, 6)
-    disguised = np.stack([np.sign(qd1) * np.exp(-((q1 - c) / 0.3) ** 2) for c in centres], axis=1)
+    disguised = np.stack([np.sign(qd1) * np.exp(-(((q1 - c) / 0.3) ** 2)) for c in centres], axis=1)
     plain = _Design(base, y, folds, 5, 1e-8)
     plain_errors = plain.held_out_errors(disguised).sum()
     plain_gain = 1 - np.sqrt(plain_errors / plain.held_out_errors().sum())

@@ -31,15 +31,24 @@ def test_report_names_declared_effects_and_rejections(tmp_path: Path) -> None:
     rejected = {"effect": "joint 2: smooth(q2)", "gain": 0.09, "control_gain": 0.042}
     history = ({"effect": "joint 2: smooth(q2) x sgn(qd2)", "gain": 0.30, "control_gain": 0.21},)
     cases = [
-        BlindCase("clean", None, (), (), (0.045, 0.042, 0.039), (0.045, 0.042, 0.039), (), rejected),
+        BlindCase(
+            "clean", None, (), (), (0.045, 0.042, 0.039), (0.045, 0.042, 0.039), (), rejected
+        ),
         BlindCase("direction-offset", None, (), (), (0.045, 0.04, 0.041), (0.045, 0.04, 0.041)),
         BlindCase(
-            "position-friction", 2, ("q2",), (FOUND_Q2,), (0.046, 0.064, 0.039),
-            (0.046, 0.044, 0.039), history,
+            "position-friction",
+            2,
+            ("q2",),
+            (FOUND_Q2,),
+            (0.046, 0.064, 0.039),
+            (0.046, 0.044, 0.039),
+            history,
         ),
     ]
     text = write_blind_report(cases, tmp_path).read_text()
-    assert "| direction-offset | - | - | nothing added | 4.10% (joint 3) | 4.10% | - | PASS |" in text
+    assert (
+        "| direction-offset | - | - | nothing added | 4.10% (joint 3) | 4.10% | - | PASS |" in text
+    )
     assert "30.0% (21.0%)" in text
     assert "`clean`: strongest candidate rejected" in text and "over the controls 4.2%" in text
     assert "`direction-offset`: expected nothing added" in text

@@ -101,11 +101,14 @@ def test_axis_nuisance_is_odd_and_acts_along_the_axes(qd: np.ndarray) -> None:
     for column in range(plus.shape[2]):
         axis = friction.axes[column // scales]  # every column is one axis's row times a shape
         np.testing.assert_allclose(
-            plus[:, :, column], np.outer(plus[:, :, column] @ axis / (axis @ axis), axis),
+            plus[:, :, column],
+            np.outer(plus[:, :, column] @ axis / (axis @ axis), axis),
             atol=1e-12,
         )
     assert axis_nuisance_regressor(friction, qd, RigidBodyFitOptions.plain())[0].shape == (
-        20, 3, 0,
+        20,
+        3,
+        0,
     )
 
 
@@ -126,6 +129,7 @@ def test_model_coordinate_friction_and_offsets_are_recovered_with_the_rigid_body
     assert report.stage_one is not None and report.stage_one.parameter_names[-1] == "offset_3"
     per_motor, _ = identify_model([recording], description, "cv", offsets=True)
     # per-motor CV cannot carry motor 3's friction to joint 2
-    assert report.friction_relative_rms[1] < 0.5 * (
-        evaluate_model(per_motor, [recording])["relative_rms"][1]
+    assert (
+        report.friction_relative_rms[1]
+        < 0.5 * (evaluate_model(per_motor, [recording])["relative_rms"][1])
     )

@@ -261,15 +261,25 @@ HUGE = "1" + "0" * 400  # 1e400: no float64
 @pytest.mark.parametrize(
     ("old", "new", "field"),
     [
-        ("gravity_mps2 = [0.0, -9.81, 0.0]", f"gravity_mps2 = [{HUGE}, -9.81, 0]", "gravity_mps2[0]"),
+        (
+            "gravity_mps2 = [0.0, -9.81, 0.0]",
+            f"gravity_mps2 = [{HUGE}, -9.81, 0]",
+            "gravity_mps2[0]",
+        ),
         ("mass_kg = 0.2", f"mass_kg = -{HUGE}", "dh.rows[1].mass_kg"),
         ("q_max_rad = [1.0, 1.7, 1.2]", f"q_max_rad = [1.0, {HUGE}, 1.2]", "q_max_rad[1]"),
         ("rest_angle_rad = 1.5", f"rest_angle_rad = {HUGE}", "springs[0].rest_angle_rad"),
         ("[0, 0, 1e-4]]", f"[0, 0, {HUGE}]]", "dh.rows[2].inertia_kgm2[2][2]"),
-        ("tip_offset_m = [0.0, 0.0, 0.05]", f"tip_offset_m = [0.0, 0.0, {HUGE}]", "dh.tip_offset_m[2]"),
+        (
+            "tip_offset_m = [0.0, 0.0, 0.05]",
+            f"tip_offset_m = [0.0, 0.0, {HUGE}]",
+            "dh.tip_offset_m[2]",
+        ),
     ],
 )
-def test_integer_beyond_float64_is_a_model_error_naming_the_field(tmp_path, suffix, old, new, field):
+def test_integer_beyond_float64_is_a_model_error_naming_the_field(
+    tmp_path, suffix, old, new, field
+):
     import tomllib
 
     path = _dh_with(tmp_path, old, new)

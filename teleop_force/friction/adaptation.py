@@ -100,7 +100,7 @@ from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_interv
 REMOVAL_TIME_CONSTANTS = 5.0
 
 
-def _per_joint(name: str, value: float | Sequence[float], n: int) -> tuple[float, ...]:
+def _per_joint(name: str, value: float | Sequence[float] | np.ndarray, n: int) -> tuple[float, ...]:
     arr = np.atleast_1d(np.asarray(value, dtype=float)).reshape(-1)
     if arr.size == 1:
         arr = np.repeat(arr, n)
@@ -221,7 +221,7 @@ class LyapunovAdapter:
         bound_B: float | Sequence[float] = 100.0,
         cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         *,
-        inertia_kgm2: float | Sequence[float] = 1.0,
+        inertia_kgm2: float | Sequence[float] | np.ndarray = 1.0,
         structure_interval: int = 10,
         removal_time_s: float = 0.05,
         keep_seeds: bool = True,

@@ -113,8 +113,8 @@ class CoverageMap:
     def __init__(
         self,
         inputs: Sequence[Sequence[int]],
-        x_min_rad_s: Sequence[Sequence[float]],
-        x_max_rad_s: Sequence[Sequence[float]],
+        x_min_rad_s: Sequence[Sequence[float] | np.ndarray],
+        x_max_rad_s: Sequence[Sequence[float] | np.ndarray],
         config: CoverageConfig | None = None,
         counts: Sequence[np.ndarray] | None = None,
     ) -> None:
@@ -287,7 +287,9 @@ class CoverageMap:
             grids = data["grids"]
             if not isinstance(grids, list):
                 raise ModelFileError("expected a list of grids", column=field)
-            inputs, lows, highs, counts = [], [], [], []
+            inputs, counts = [], []
+            lows: list[np.ndarray] = []
+            highs: list[np.ndarray] = []
             for j, grid in enumerate(grids):
                 field = f"grids[{j}]"
                 if not isinstance(grid, dict):

@@ -330,8 +330,7 @@ class WaveletPool:
                 raise ConfigurationError(f"joint {j + 1}: {spec.d} inputs (at most {MAX_INPUTS})")
             if spec.m_max - spec.m_min + 1 > MAX_DILATIONS:
                 raise ConfigurationError(
-                    f"joint {j + 1}: dilations {spec.m_min}..{spec.m_max} "
-                    f"(at most {MAX_DILATIONS})"
+                    f"joint {j + 1}: dilations {spec.m_min}..{spec.m_max} (at most {MAX_DILATIONS})"
                 )
             lo = np.asarray(spec.x_min_rad_s)
             hi = np.asarray(spec.x_max_rad_s)

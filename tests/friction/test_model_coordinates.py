@@ -84,7 +84,12 @@ def test_identity_coupling_is_the_plain_coulomb_viscous_model():
 def test_names_follow_the_model_joints_and_the_joints_they_act_on():
     model = ModelCoordinateFriction(RELATIVE)
     assert model.all_parameter_names() == [
-        "a_c,m1", "a_v,m1", "a_c,m2", "a_v,m2", "a_c,m3", "a_v,m3"
+        "a_c,m1",
+        "a_v,m1",
+        "a_c,m2",
+        "a_v,m2",
+        "a_c,m3",
+        "a_v,m3",
     ]
     assert model.parameter_names(1) == ["a_c,m2", "a_v,m2", "a_c,m3", "a_v,m3"]
     assert model.axis_slice(2) == slice(4, 6)
