@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from teleop_force.bench_util import command_line, descendants, peak_rss_mb
+from teleop_force.bench_util import command_line, descendants
+from teleop_force.process_memory import peak_rss_mb
 
 #: Poll period of the service's memory [s].
 _POLL_S = 0.25

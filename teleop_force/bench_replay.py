@@ -27,7 +27,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from teleop_force.bench_util import peak_rss_mb, read_status_kb, stopwatch
+from teleop_force.bench_util import stopwatch
+from teleop_force.process_memory import peak_rss_mb, resident_memory_mb
 
 #: Longest wait for the service to catch up after the last publication [s].
 _CATCH_UP_S = 120.0
@@ -52,7 +53,7 @@ def replay_job(session_path: Path, model_path: Path) -> dict[str, Any]:
     expected = reader.message_counts.get(keys.measured_js(device), 0)
     model, _ = load_model(model_path)
     session = open_session(ZenohOptions(mode="peer", multicast_scouting=False))
-    rss_before = (read_status_kb("self", "VmRSS") or 0) / 1024.0
+    rss_before = resident_memory_mb() or 0.0
     service = ForceService(session, model, ServiceConfig(device=device, source="replay"))
     try:
         service.start()

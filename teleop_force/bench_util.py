@@ -1,4 +1,4 @@
-"""Helpers of ``teleop-force bench``: percentiles, peak memory, process trees, timers.
+"""Helpers of ``teleop-force bench``: percentiles, process trees, timers.
 
 Timing uses :func:`time.perf_counter` (wall) and :func:`time.process_time` (CPU of this
 process): on a shared machine the ratio of the two says how much of a wall time was waiting
@@ -8,8 +8,6 @@ for a core.
 from __future__ import annotations
 
 import os
-import resource
-import sys
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
@@ -28,33 +26,6 @@ def percentiles(values: Sequence[float] | np.ndarray, points: Iterable[float]) -
 def rounded(value: float | None, digits: int = 3) -> float | None:
     """``value`` rounded to ``digits`` significant decimals after the point (None stays)."""
     return None if value is None else round(float(value), digits)
-
-
-def read_status_kb(pid: int | str, field: str) -> int | None:
-    """Read a ``kB`` field (``VmHWM``, ``VmRSS``) of ``/proc/<pid>/status`` (None: unreadable)."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
-def peak_rss_mb(pid: int | None = None) -> float | None:
-    """High-water mark of the resident set of ``pid`` (default: this process) [MB = 2^20 B].
-
-    Linux: ``VmHWM`` of ``/proc/<pid>/status``; elsewhere, for this process only,
-    :func:`resource.getrusage` (``ru_maxrss``: kB on Linux, bytes on macOS).
-    """
-    kb = read_status_kb("self" if pid is None else pid, "VmHWM")
-    if kb is not None:
-        return kb / 1024.0
-    if pid is not None:
-        return None
-    maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return maxrss / (1024.0 * 1024.0) if sys.platform == "darwin" else maxrss / 1024.0
 
 
 def child_pids(pid: int) -> list[int]:

@@ -19,9 +19,10 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import math
+import resource
+import sys
 import threading
 import time
-from pathlib import Path
 
 from teleop_force.errors import ConfigurationError
 
@@ -44,16 +45,37 @@ def _malloc_trim() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
     return trim
 
 
-def resident_memory_mb(pid: int | str = "self") -> float | None:
-    """Resident set size of a process [MB] (``VmRSS``), or None where it cannot be read."""
+def read_status_kb(pid: int | str, field: str) -> int | None:
+    """Read a ``kB`` field (``VmHWM``, ``VmRSS``) of ``/proc/<pid>/status`` (None: unreadable)."""
     try:
-        text = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
         return None
-    for line in text.splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
     return None
+
+
+def resident_memory_mb(pid: int | str = "self") -> float | None:
+    """Resident set size of a process [MB = 2^20 B] (``VmRSS``), or None where unreadable."""
+    kb = read_status_kb(pid, "VmRSS")
+    return None if kb is None else kb / 1024.0
+
+
+def peak_rss_mb(pid: int | None = None) -> float | None:
+    """High-water mark of the resident set of ``pid`` (default: this process) [MB = 2^20 B].
+
+    Linux: ``VmHWM`` of ``/proc/<pid>/status``; elsewhere, for this process only,
+    :func:`resource.getrusage` (``ru_maxrss``: kB on Linux, bytes on macOS).
+    """
+    kb = read_status_kb("self" if pid is None else pid, "VmHWM")
+    if kb is not None:
+        return kb / 1024.0
+    if pid is not None:
+        return None
+    maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return maxrss / (1024.0 * 1024.0) if sys.platform == "darwin" else maxrss / 1024.0
 
 
 class MemoryTrimmer:
@@ -108,6 +130,7 @@ class MemoryTrimmer:
 
     def stats(self) -> dict[str, object]:
         """Counters for the service's statistics."""
+        rss = resident_memory_mb()
         with self._lock:
             return {
                 "available": self.available,
@@ -115,13 +138,9 @@ class MemoryTrimmer:
                 "trims": self.trims,
                 "released_mb": round(self.released_mb, 2),
                 "last_trim_ms": None if self.last_trim_ms is None else round(self.last_trim_ms, 3),
-                "rss_mb": _rounded(resident_memory_mb()),
+                "rss_mb": None if rss is None else round(rss, 2),
             }
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):
             self.trim_now()
-
-
-def _rounded(value: float | None) -> float | None:
-    return None if value is None else round(value, 2)

@@ -372,16 +372,6 @@ def reversal_transient_basis(
     return np.concatenate((decay * sign, decay), axis=1)
 
 
-def _reversal_columns(data: _Data, joint: int) -> np.ndarray:
-    """Return the filtered reversal stand-ins of ``joint`` at the selected rows."""
-    out = []
-    for item, idx in zip(data.prepared, data.rows, strict=True):
-        s = item.signals
-        phi = reversal_transient_basis(s.t_s, s.q_rad[:, joint], s.qd_rad_s[:, joint])
-        out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
-    return np.concatenate(out)
-
-
 def _velocity_controls(data: _Data, joint: int, covered: tuple[int, ...]) -> list[BasisSpec]:
     """Friction-shaped stand-ins for what the friction model may still miss on ``joint``.
 
@@ -452,7 +442,7 @@ def trace_residual(
             continue
         extra = np.concatenate(
             [_filtered_columns(data, spec) for spec in specs]
-            + [_nuisance_columns(data, j, description), _reversal_columns(data, j)],
+            + [_friction_stand_in_columns(data, j, description)],
             axis=1,
         )
         controls.append(
@@ -544,14 +534,22 @@ def trace_residual(
     )
 
 
-def _nuisance_columns(data: _Data, joint: int, description: RobotDescription) -> np.ndarray:
-    """Return the rigid-body fit's nuisance friction terms of ``joint`` (coupled inputs too)."""
+def _friction_stand_in_columns(
+    data: _Data, joint: int, description: RobotDescription
+) -> np.ndarray:
+    """Return ``joint``'s filtered friction stand-ins at the selected rows.
+
+    The rigid-body fit's nuisance friction terms (coupled inputs too), then the transients
+    after the joint's motion reversals (:func:`reversal_transient_basis`).
+    """
     out = []
     for item, idx in zip(data.prepared, data.rows, strict=True):
         s = item.signals
-        phi, _ = nuisance_friction_basis(
+        nuisance, _ = nuisance_friction_basis(
             s.qd_rad_s, joint, description.friction_inputs, RigidBodyFitOptions()
         )
+        reversal = reversal_transient_basis(s.t_s, s.q_rad[:, joint], s.qd_rad_s[:, joint])
+        phi = np.concatenate((nuisance, reversal), axis=1)
         out.append(lowpass_batch(phi, s.t_s, s.config.cutoff_hz)[idx])
     return np.concatenate(out)
 

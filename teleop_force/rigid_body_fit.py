@@ -232,7 +232,7 @@ def fit_rigid_body(
     regressor = RigidBodyRegressor(description)
     n = description.n_joints
     blocks, torques = [], []
-    names: list[str] = []
+    nuisance_names: list[str] = []
     for rec in recordings:
         q = rec.q_rad
         if options.smoothing_hz is not None:
@@ -250,7 +250,7 @@ def fit_rigid_body(
             parts.append(np.broadcast_to(np.eye(n), (int(signals.valid.sum()), n, n)))
         blocks.append(np.concatenate(parts, axis=2))
         torques.append(signals.tau_lowpassed_nm[signals.valid])
-        names = list(base.names()) + friction.all_parameter_names() + nuisance_names
+    names = list(base.names()) + friction.all_parameter_names() + nuisance_names
     if offsets:
         names += [f"offset_{j + 1}" for j in range(n)]
     fit = least_squares(np.concatenate(blocks), np.concatenate(torques), names)

@@ -79,7 +79,7 @@ from teleop_force.errors import (
 from teleop_force.estimation import ForceEstimator
 from teleop_force.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.models import DEFAULT_MODEL_PATH
-from teleop_force.process_memory import DEFAULT_TRIM_PERIOD_S, MemoryTrimmer
+from teleop_force.process_memory import MemoryTrimmer
 from teleop_force.service_adaptation import OnlineAdaptation, adaptation_unavailable_reason
 from teleop_force.service_controls import (
     ControlError,
@@ -140,8 +140,6 @@ class ServiceConfig:
             and ``teleop_force/models/``.
         record_dirs: Folders recordings may be started in on request, besides ``recordings/``.
         record_flush_s: A recording's chunk is handed to the OS at least this often [s].
-        memory_trim_period_s: Free malloc memory is handed back to the system this often [s]
-            (:mod:`teleop_force.process_memory`); ``None``: never.
 
     """
 
@@ -153,7 +151,6 @@ class ServiceConfig:
     models_dirs: tuple[Path, ...] = ()
     record_dirs: tuple[Path, ...] = ()
     record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
-    memory_trim_period_s: float | None = DEFAULT_TRIM_PERIOD_S
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -168,9 +165,6 @@ class ServiceConfig:
         object.__setattr__(self, "record_dirs", tuple(Path(d) for d in self.record_dirs))
         if not (math.isfinite(self.record_flush_s) and self.record_flush_s > 0.0):
             raise ConfigurationError(f"record_flush_s must be > 0, got {self.record_flush_s}")
-        period = self.memory_trim_period_s
-        if period is not None and not (math.isfinite(period) and period > 0.0):
-            raise ConfigurationError(f"memory_trim_period_s must be > 0 or None, got {period}")
 
 
 class ForceService:
@@ -183,8 +177,13 @@ class ForceService:
         config: ServiceConfig | None = None,
         *,
         model_path: Path | None = None,
+        memory: MemoryTrimmer | None = None,
     ) -> None:
-        """Prepare the estimator (and the recording file); call :meth:`start` to go live."""
+        """Prepare the estimator (and the recording file); call :meth:`start` to go live.
+
+        ``memory``: the process's trimmer (started and stopped by its owner, the service
+        process), reported under ``memory`` in the statistics.
+        """
         self.session = session
         self.model = model
         self.config = config if config is not None else ServiceConfig()
@@ -233,8 +232,7 @@ class ForceService:
         self.control_refused = 0
         self.last_refusal = ""
         self._logged: set[str] = set()
-        period = self.config.memory_trim_period_s
-        self.memory = MemoryTrimmer(period) if period is not None else None
+        self.memory = memory
         if self.config.adapt:
             self.set_adaptation(True)
         if self.config.record_path is not None:
@@ -284,8 +282,6 @@ class ForceService:
             declare_json_queryable(session, keys.service_stats(device), self.stats)
         )
         self._entities.append(declare_token(session, keys.alive(device, ROLE)))
-        if self.memory is not None:
-            self.memory.start()
         self._started_s = time.perf_counter()
         return self
 
@@ -305,8 +301,6 @@ class ForceService:
         undeclare_all(*reversed(entities), *recorded)
         if already:
             return
-        if self.memory is not None:
-            self.memory.stop()
         if self._control_thread is not None:
             self._controls.put(None)
             self._control_thread.join(DRAIN_TIMEOUT_S)
@@ -830,8 +824,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TeleopForceError as exc:
         log(ROLE, f"error: {exc}")
         return 2
+    trimmer = MemoryTrimmer().start()  # a long-running process: RSS follows what is live
     try:
-        service = ForceService(session, model, config, model_path=model_path)
+        service = ForceService(session, model, config, model_path=model_path, memory=trimmer)
         try:
             service.start()
             log(
@@ -846,6 +841,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log(ROLE, f"error: {exc}")
         return 2
     finally:
+        trimmer.stop()
         session.close()
     if args.stats_json:
         write_json(args.stats_json, stats)

@@ -9,7 +9,8 @@ import sys
 
 import pytest
 
-from teleop_force.bench_util import peak_rss_mb, percentiles
+from teleop_force.bench_util import percentiles
+from teleop_force.process_memory import peak_rss_mb
 
 NUMBERS = (
     "estimate_step_p50_us",

@@ -14,6 +14,7 @@ from teleop_force.estimation import ForceEstimator
 from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
 from teleop_force.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.process_memory import MemoryTrimmer
 from teleop_force.service import ForceService, ServiceConfig
 from teleop_force.service_transport import declare_data_publisher, query_json
 from teleop_force.zenoh_session import ZenohOptions, open_session
@@ -175,17 +176,15 @@ def test_adaptation_runs_on_a_wavelet_network_model(session, model):
     assert after.size != before.size or not np.array_equal(after, before)  # it learnt something
 
 
-def test_stats_report_memory_and_the_trimmer_runs(session, model):
-    config = ServiceConfig(device=DEVICE, memory_trim_period_s=0.05)
-    service = ForceService(session, model, config).start()
+def test_stats_report_the_process_memory_trimmer(session, model):
+    trimmer = MemoryTrimmer(period_s=0.05).start()
+    service = ForceService(session, model, ServiceConfig(device=DEVICE), memory=trimmer).start()
     try:
         wait_until(lambda: service.stats()["memory"]["trims"] >= 2)
         memory = service.stats()["memory"]
     finally:
         service.close()
+        trimmer.stop()
     assert memory["available"] and memory["period_s"] == 0.05
     assert memory["rss_mb"] > 10.0 and memory["released_mb"] >= 0.0
-    never = ServiceConfig(device=DEVICE, memory_trim_period_s=None)
-    assert ForceService(session, model, never).stats()["memory"] is None
-    with pytest.raises(ConfigurationError, match="memory_trim_period_s"):
-        ServiceConfig(device=DEVICE, memory_trim_period_s=0.0)
+    assert ForceService(session, model, ServiceConfig(device=DEVICE)).stats()["memory"] is None

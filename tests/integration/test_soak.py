@@ -41,6 +41,7 @@ from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, wait_for
 
 from teleop_force import keys
 from teleop_force import messages as m
+from teleop_force.process_memory import resident_memory_mb
 from teleop_force.service_accuracy import FOLD_KEEP, AccuracyConfig, ForceAccuracy
 from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, open_session
 
@@ -105,16 +106,6 @@ class Stream:
     def close(self) -> None:
         for sub in self.subs:
             sub.undeclare()
-
-
-def rss_mb(pid: int) -> float | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
 
 
 def growth_mb_per_min(samples: list[tuple[float, float]], skip_s: float = 60.0) -> float | None:
@@ -189,7 +180,7 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
                 while demo.poll() is None:
                     elapsed = time.perf_counter() - started
                     for name, pid in pids.items():
-                        value = rss_mb(pid)
+                        value = resident_memory_mb(pid)
                         if value is not None:
                             samples.setdefault(name, []).append((elapsed, value))
                     if elapsed > SOAK_S + STARTUP_TIMEOUT_S:
