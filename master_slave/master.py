@@ -50,6 +50,7 @@ from master_slave.realtime import LoopConfig, RateLoop
 from teleop_force import keys, omni
 from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
+from teleop_force.process_memory import MemoryTrimmer
 from teleop_force.service_runtime import (
     StopSignal,
     log,
@@ -354,7 +355,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             haptic_feedback=args.haptic_feedback,
             feedback_scale=args.feedback_scale,
         )
-        stats = MasterProcess(config, options_from_args(args), stop).run()
+        with MemoryTrimmer() as trimmer:  # a long-running process: RSS follows what is live
+            stats = MasterProcess(config, options_from_args(args), stop).run()
+        stats["memory"] = trimmer.stats()
     except TeleopForceError as exc:
         log(ROLE, f"error: {exc}")
         return 2

@@ -57,6 +57,7 @@ from master_slave.safety import SafetyConfig, SafetyMonitor
 from teleop_force import keys
 from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
+from teleop_force.process_memory import MemoryTrimmer
 from teleop_force.service_runtime import (
     StopSignal,
     log,
@@ -416,7 +417,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             surface_y_m=None if args.no_tissue else args.surface_y,
             seed=args.seed,
         )
-        stats = SlaveProcess(config, options_from_args(args), stop).run()
+        with MemoryTrimmer() as trimmer:  # a long-running process: RSS follows what is live
+            stats = SlaveProcess(config, options_from_args(args), stop).run()
+        stats["memory"] = trimmer.stats()
     except TeleopForceError as exc:
         log(ROLE, f"error: {exc}")
         return 2

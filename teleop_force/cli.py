@@ -118,7 +118,8 @@ def _cmd_residual(args: argparse.Namespace) -> int:
 
     recordings = _load_recordings(args.data, robot=args.robot)
     description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
-    report = trace_residual(recordings, description, ResidualOptions(friction=args.friction))
+    options = ResidualOptions(friction=args.friction, offsets=True if args.offsets else None)
+    report = trace_residual(recordings, description, options)
     if args.output:
         path = write_residual_report(report, Path(args.output), list(description.joint_names))
         _log(f"report written to {path}")
@@ -175,7 +176,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         from teleop_force.dynamic_model import DynamicModel
 
         DynamicModel.load(config.model)  # a bad model is bad input: exit 2 before starting
-    summary = run_demo(config, StopSignal().install())
+    from teleop_force.process_memory import MemoryTrimmer
+
+    with MemoryTrimmer():  # the supervisor runs as long as the demo
+        summary = run_demo(config, StopSignal().install())
     return EXIT_OK if summary["ok"] else 1
 
 
@@ -330,9 +334,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", default="omni")
     p.add_argument(
         "--friction",
-        choices=("cv", "coupled-cv"),
+        choices=("cv", "coupled-cv", "model-cv"),
         default="coupled-cv",
-        help="friction of the model the residual is taken from",
+        help="friction of the model the residual is taken from (model-cv: in model coordinates)",
+    )
+    p.add_argument(
+        "--offsets",
+        action="store_true",
+        help="fit a constant torque per joint with the friction (default: only without a body)",
     )
     p.add_argument("--json", action="store_true")
     p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")

@@ -37,12 +37,16 @@ from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.filtered_regressor import FilterConfig
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
+from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification import least_squares
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.model_fitting import PreparedRecording, prepare, stage_one_friction
 from teleop_force.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis
 from teleop_force.robot import RobotDescription
+
+#: Friction of the model the residual is taken from.
+RESIDUAL_FRICTION_KINDS: tuple[str, ...] = ("cv", "coupled-cv", "wn", ModelCoordinateFriction.kind)
 
 
 @dataclass(frozen=True)
@@ -61,6 +65,8 @@ class ResidualOptions:
     harmonics: int = 2
     friction: str = "wn"
     ridge: float = 1e-4
+    #: Fit a constant torque per joint; None: only without rigid-body terms.
+    offsets: bool | None = None
 
     def __post_init__(self) -> None:
         if self.folds < 3:
@@ -69,8 +75,11 @@ class ResidualOptions:
             raise ConfigurationError("min_rms_gain must be in (0, 1)")
         if not 0 <= self.min_control_gain < 1:
             raise ConfigurationError("min_control_gain must be in [0, 1)")
-        if self.friction not in ("cv", "coupled-cv", "wn"):
-            raise ConfigurationError("residual friction must be cv, coupled-cv or wn")
+        if self.friction not in RESIDUAL_FRICTION_KINDS:
+            raise ConfigurationError(
+                f"residual friction must be one of {', '.join(RESIDUAL_FRICTION_KINDS)},"
+                f" got {self.friction!r}"
+            )
         if self.decimate < 1:
             raise ConfigurationError("decimate must be >= 1")
 
@@ -248,10 +257,15 @@ def _joint_base(
     network: FrictionModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     cols, ys = [], []
+    reach = _friction_reach(data, friction, joint)
     for item, idx in zip(data.prepared, data.rows, strict=True):
         s = item.signals
         parts = [s.rigid_regressor[idx, joint, :]]
-        phi = lowpass_batch(friction.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
+        if friction.block_diagonal:
+            own = friction.basis(joint, s.qd_rad_s)
+        else:
+            own = friction.regressor(s.qd_rad_s)[:, joint, reach]
+        phi = lowpass_batch(own, s.t_s, s.config.cutoff_hz)
         parts.append(phi[idx])
         if network is not None:
             psi = lowpass_batch(network.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
@@ -261,6 +275,17 @@ def _joint_base(
         cols.append(np.concatenate(parts, axis=1))
         ys.append(s.tau_lowpassed_nm[idx, joint])
     return np.concatenate(cols), np.concatenate(ys)
+
+
+def _friction_reach(data: _Data, friction: FrictionModel, joint: int) -> np.ndarray:
+    """Friction parameters whose torque reaches ``joint`` anywhere in the data (a mask)."""
+    if friction.block_diagonal:
+        return np.zeros(0, dtype=bool)
+    reach = np.zeros(friction.parameters.size, dtype=bool)
+    for item in data.prepared:
+        phi = friction.regressor(item.signals.qd_rad_s)[:, joint, :]
+        reach |= np.any(phi != 0.0, axis=0)
+    return reach
 
 
 def _candidates(
@@ -422,7 +447,7 @@ def trace_residual(
     config = config or FilterConfig()
     prepared, base = prepare(recordings, description, config)
     n = description.n_joints
-    offsets = not description.has_rigid_body
+    offsets = not description.has_rigid_body if options.offsets is None else options.offsets
     friction = stage_one_friction(options.friction, description)
     stage_one = _stage_one_fit(prepared, base, friction, offsets)
     data = _select_rows(prepared, options, stage_one[: 0 if base is None else base.count])
@@ -433,7 +458,10 @@ def trace_residual(
     for j in range(n):
         columns, y = _joint_base(data, friction, j, offsets, network)
         designs.append(_Design(columns, y, data.folds, options.folds, options.ridge))
-    covered = description.friction_inputs if network is not None else tuple(() for _ in range(n))
+    # The velocities the friction maps beyond each joint's own: the network's inputs, or the
+    # model-coordinate laws that reach the joint through the coupling.
+    maps_inputs = network is not None or not friction.block_diagonal
+    covered = description.friction_inputs if maps_inputs else tuple(() for _ in range(n))
     controls: list[_Design | None] = []
     for j, design in enumerate(designs):
         specs = _velocity_controls(data, j, covered[j])
@@ -652,11 +680,9 @@ def _final_model(
         m = int(v.sum())
         a = np.zeros((m, n, total))
         a[:, :, :r] = s.rigid_regressor[v]
-        for j in range(n):
-            sl = friction.joint_slice(j)
-            a[:, j, r + sl.start : r + sl.stop] = lowpass_batch(
-                friction.basis(j, s.qd_rad_s), s.t_s, config.cutoff_hz
-            )[v]
+        raw = friction.regressor(s.qd_rad_s)
+        phi = lowpass_batch(raw.reshape(raw.shape[0], -1), s.t_s, config.cutoff_hz)
+        a[:, :, r : r + p_f] = phi.reshape(raw.shape)[v]
         col = r + p_f
         if offsets:
             a[:, :, col : col + n] = np.eye(n)
@@ -671,8 +697,7 @@ def _final_model(
         blocks.append(a)
         torques.append(s.tau_lowpassed_nm[v])
     names = list(base.names() if base is not None else [])
-    for j in range(n):
-        names += friction.parameter_names(j)
+    names += friction.all_parameter_names()
     if offsets:
         names += [f"offset_{j + 1}" for j in range(n)]
     for k, spec in enumerate(specs):

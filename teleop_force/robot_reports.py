@@ -39,6 +39,8 @@ MTM_SERIAL_ROW = "CV, serial chain (no parallelogram)"
 #: constant torque per joint (the data authors' Coulomb + viscous + offset).
 MTM_MODEL_CV_ROW = "model-coordinate CV (through the coupling)"
 MTM_MODEL_CV_OFFSETS_ROW = "model-coordinate CV + offsets"
+#: The residual loop's row on the model-coordinate CV + offsets baseline.
+MTM_MODEL_CV_EFFECTS_ROW = "model-coordinate CV + offsets + found effects"
 _AXIS_GRAVITIES = {
     "-z": (0.0, 0.0, -9.81),
     "+z": (0.0, 0.0, 9.81),
@@ -107,40 +109,26 @@ def mtm_study(
             log(f"MTM {kind}: not done ({type(exc).__name__}: {exc})")
             rows[kind] = {"done": False, "reason": f"{type(exc).__name__}: {exc}"}
             continue
-        rows[kind] = {
-            "done": True,
-            "train": report.friction_relative_rms.tolist(),
-            "test": result["relative_rms"].tolist(),
-            "test_zero_phase": _zero_phase_relative_rms(
-                result["measured"], result["estimated"], MTM_FLOOR_HZ
-            ).tolist(),
-            "seconds": time.perf_counter() - start,
-            "measured": result["measured"],
-            "estimated": result["estimated"],
-        }
+        rows[kind] = _mtm_row(report.friction_relative_rms, result, start)
         log(f"MTM {kind}: test {', '.join(_pct(result['relative_rms']))}")
-    effects: list[dict[str, Any]] = []
+    effects: dict[str, list[dict[str, Any]]] = {}
     if residual:
         from teleop_force.residual import ResidualOptions, trace_residual
 
-        start = time.perf_counter()
-        options = ResidualOptions()
-        traced = trace_residual([train.recording], description, options)
-        result = evaluate_model(traced.model, [test.recording])
-        rows[f"{options.friction} + found effects"] = {
-            "done": True,
-            "train": traced.after.tolist(),
-            "held_out_before": traced.before.tolist(),
-            "test": result["relative_rms"].tolist(),
-            "seconds": time.perf_counter() - start,
-            "measured": result["measured"],
-            "estimated": result["estimated"],
-        }
-        effects = [e.to_json() for e in traced.effects]
-        log(
-            f"MTM residual loop: {len(effects)} effects; "
-            f"test {', '.join(_pct(result['relative_rms']))}"
-        )
+        for label, options in (
+            ("wn + found effects", ResidualOptions()),
+            (MTM_MODEL_CV_EFFECTS_ROW, ResidualOptions(friction="model-cv", offsets=True)),
+        ):
+            start = time.perf_counter()
+            traced = trace_residual([train.recording], description, options)
+            result = evaluate_model(traced.model, [test.recording])
+            rows[label] = _mtm_row(traced.after, result, start)
+            rows[label]["held_out_before"] = traced.before.tolist()
+            effects[label] = [e.to_json() for e in traced.effects]
+            log(
+                f"MTM residual loop ({label}): {len(effects[label])} effects; "
+                f"test {', '.join(_pct(result['relative_rms']))}"
+            )
     gravity = {}
     for label, vector in _AXIS_GRAVITIES.items():
         candidate = dvrk_mtm_description(vector)
@@ -167,6 +155,21 @@ def mtm_study(
         "effects": effects,
         "gravity": gravity,
         "joint_names": list(description.joint_names),
+    }
+
+
+def _mtm_row(train: np.ndarray, result: dict[str, Any], start: float) -> dict[str, Any]:
+    """One model's row: training and test relative RMS, both metrics, and its time."""
+    return {
+        "done": True,
+        "train": np.asarray(train).tolist(),
+        "test": result["relative_rms"].tolist(),
+        "test_zero_phase": _zero_phase_relative_rms(
+            result["measured"], result["estimated"], MTM_FLOOR_HZ
+        ).tolist(),
+        "seconds": time.perf_counter() - start,
+        "measured": result["measured"],
+        "estimated": result["estimated"],
     }
 
 
@@ -452,15 +455,20 @@ def _mtm_markdown(mtm: dict[str, Any]) -> list[str]:
             for j, m in enumerate(margins)
         )
         lines.append(f"- {name}: {verdict}")
-    if mtm["effects"]:
+    found = mtm["effects"]
+    if isinstance(found, list):  # a report written before the model-coordinate baseline
+        found = {"wn + found effects": found}
+    for label, traced in found.items():
+        if not traced:
+            continue
         lines += [
             "",
-            "Effects the residual loop found (held-out blocks of trajectory one):",
+            f"Effects the residual loop found ({label}; held-out blocks of trajectory one):",
             "",
             "| # | joint | depends on | kind | explained | joint RMS before | after |",
             "|---|---|---|---|---|---|---|",
         ]
-        for k, e in enumerate(mtm["effects"]):
+        for k, e in enumerate(traced):
             lines.append(
                 f"| {k + 1} | {e['joint']} | {', '.join(e['depends_on'])} | {e['kind']} |"
                 f" {e['explained']:.1%} |"

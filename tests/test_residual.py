@@ -202,3 +202,68 @@ def test_reversal_basis_is_bounded_odd_and_resets_at_reversals(velocities, dt_s)
     for a, b in itertools.pairwise(moving):
         if np.sign(qd[a]) != np.sign(qd[b]):  # b is a reversal: every decay restarts at 1
             np.testing.assert_allclose(phi[b, half:], 1.0)
+
+
+def _coupled_cable(spring: bool, seed: int = 0) -> tuple[Recording, object]:
+    """Two joints whose friction acts on model axes ``w = T qd`` (a cable over joint 1's pulley).
+
+    Torque ``T^T f(T qd)`` plus offsets, and (``spring``) an angle-dependent torque on joint 2.
+    """
+    from dataclasses import replace
+
+    from teleop_force.robots import friction_only_description
+
+    coupling = np.array([[1.0, 0.0], [0.7, 1.0]])
+    description = replace(
+        friction_only_description(2), coupling=coupling, friction_inputs=((0,), (0, 1))
+    )
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 40.0, 0.005)
+    q = np.column_stack(
+        (
+            0.8 * np.sin(2 * np.pi * 0.13 * t) + 0.3 * np.sin(2 * np.pi * 0.31 * t),
+            0.7 * np.sin(2 * np.pi * 0.17 * t + 1.0) + 0.2 * np.sin(2 * np.pi * 0.41 * t),
+        )
+    )
+    qd = np.gradient(q, t, axis=0)
+    w = qd @ coupling.T
+    f = np.array([0.02, 0.03]) * np.tanh(w / 0.01) + np.array([0.004, 0.006]) * w
+    tau = f @ coupling + np.array([0.01, -0.005])
+    if spring:
+        tau[:, 1] += 0.03 * np.sin(1.5 * q[:, 1] + 0.3)
+    tau += rng.normal(0.0, 0.001, tau.shape)
+    return Recording(t, q, tau), description
+
+
+def test_model_coordinate_friction_residual_traces_the_spring(tmp_path: Path) -> None:
+    """With friction in model coordinates (and offsets) the loop names joint 2's spring."""
+    from teleop_force.friction.model_coordinates import ModelCoordinateFriction
+    from teleop_force.model_fitting import evaluate_model
+
+    recording, description = _coupled_cable(spring=True)
+    options = ResidualOptions(friction="model-cv", offsets=True)
+    report = trace_residual([recording], description, options)
+    assert report.effects, "the spring on joint 2 was not found"
+    first = report.effects[0]
+    assert first.spec.joint == 1 and "q2" in first.spec.depends_on(), first.spec.describe()
+    assert report.after[1] < 0.5 * report.before[1], (report.before, report.after)
+    assert isinstance(report.model.friction, ModelCoordinateFriction)
+    held_out, _ = _coupled_cable(spring=True, seed=1)
+    error = evaluate_model(report.model, [held_out])["relative_rms"]
+    assert np.all(error < 0.1), error
+    path = tmp_path / "model.json"
+    report.model.save(path)
+    again = evaluate_model(DynamicModel.load(path), [held_out])["relative_rms"]
+    np.testing.assert_allclose(again, error, rtol=1e-9)
+
+
+def test_model_coordinate_friction_residual_adds_nothing_without_the_spring() -> None:
+    recording, description = _coupled_cable(spring=False)
+    options = ResidualOptions(friction="model-cv", offsets=True)
+    report = trace_residual([recording], description, options)
+    assert report.effects == (), [e.spec.describe() for e in report.effects]
+
+
+def test_unknown_residual_friction_is_refused() -> None:
+    with pytest.raises(ValueError, match="residual friction"):
+        ResidualOptions(friction="stribeck")

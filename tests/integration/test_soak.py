@@ -5,8 +5,9 @@
 
 ``teleop-force demo`` (not headless) runs master, slave, service (recording) and the dashboard;
 headless Chromium keeps the dashboard page open the whole time; the test's own Zenoh peer
-counts sequence gaps and measures latencies. Every 10 s the resident memory (RSS) of each
-process is sampled. Figures (written to ``test-output/soak.json`` and printed):
+counts sequence gaps and measures latencies. Every second (``TELEOP_SOAK_SAMPLE_S``) the
+resident memory (RSS) of each process is sampled. Figures (written to
+``test-output/soak.json`` and printed):
 
 - messages lost: the demo's own count (setpoints at the slave, joint states at the service,
   estimates and true forces at the supervisor) plus the gaps seen by the test's peer;
@@ -53,7 +54,7 @@ CHROMIUM_ARGS = [
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]  # fmt: skip
 SOAK_S = float(os.environ.get("TELEOP_SOAK_S", "600"))
-SAMPLE_PERIOD_S = 10.0
+SAMPLE_PERIOD_S = float(os.environ.get("TELEOP_SOAK_SAMPLE_S", "1"))
 RING = 1 << 16
 _SOURCE_SEQ = struct.Struct("<I")
 
@@ -175,7 +176,9 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
                 url = f"http://127.0.0.1:{port}/"
                 wait_for(lambda: _http_up(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
                 page.goto(url, wait_until="domcontentloaded", timeout=STARTUP_TIMEOUT_S * 1000)
-                page.wait_for_selector("#tf-trust", timeout=STARTUP_TIMEOUT_S * 1000)
+                page.wait_for_selector(
+                    "#tf-trust", timeout=STARTUP_TIMEOUT_S * 3000
+                )  # the first page load shares the machine with five busy processes
                 started = time.perf_counter()
                 while demo.poll() is None:
                     elapsed = time.perf_counter() - started
