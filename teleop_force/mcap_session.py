@@ -9,11 +9,16 @@ Layout of a session file:
   own source stamp ``t_ns``, MCAP ``sequence`` = the message's ``seq``;
 - a metadata record ``teleop_force.session`` with the writer's key/value metadata.
 
-Crash safety: data is written in small zstd-compressed chunks (128 KiB uncompressed by default)
-straight to the operating system (no user-space buffer), and a chunk is closed at least every
-``flush_interval_s``, so a recorder killed with SIGKILL leaves a file whose complete chunks
-are all readable. :class:`SessionReader` reads such a truncated file (no summary or footer)
-as well as a complete one.
+Crash safety: data is written in zstd-compressed chunks (at most 1 MiB uncompressed by
+default) straight to the operating system (no user-space buffer), and a chunk is closed at
+least every ``flush_interval_s``, so a recorder killed with SIGKILL leaves a file whose
+complete chunks are all readable: it loses at most the last ``flush_interval_s`` of data.
+The writer keeps one chunk index per chunk in memory until the summary is written at close
+(about 0.7 kB each): with 128 KiB chunks the demo's recording (1 MB/s uncompressed) made 4770
+chunks in 10 minutes, 3.3 MB of indexes; with 1 MiB chunks the 0.5 s flush closes them
+first (1193 chunks of 552 kB on average, 0.9 MB of indexes): the same loss bound.
+:class:`SessionReader` reads such a truncated file (no summary or footer) as well as a
+complete one.
 """
 
 from __future__ import annotations
@@ -49,7 +54,7 @@ METADATA_NAME: Final = "teleop_force.session"
 #: Value of the ``format`` metadata key, with ``format_version``.
 FORMAT_NAME: Final = "teleop-force-session"
 FORMAT_VERSION: Final = "1"
-DEFAULT_CHUNK_SIZE_BYTES: Final = 128 * 1024
+DEFAULT_CHUNK_SIZE_BYTES: Final = 1024 * 1024
 DEFAULT_FLUSH_INTERVAL_S: Final = 0.5
 
 _MCAP_MAGIC: Final = b"\x89MCAP0\r\n"

@@ -92,6 +92,17 @@ def test_residual_cli_json_contract(tmp_path: Path, capsys) -> None:
     assert (tmp_path / "report" / "error_per_joint.png").exists()
 
 
+def test_residual_cli_takes_model_coordinate_friction_and_offsets(tmp_path: Path, capsys) -> None:
+    """On a robot without coupling, model-coordinate CV is CV: the cable torque is found."""
+    path = tmp_path / "sweep.csv"
+    write_interchange_csv(path, _sweep(cable=True))
+    argv = ["residual", str(path), "--robot", "none", "--friction", "model-cv", "--offsets"]
+    assert main([*argv, "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["effects"] and "q1" in payload["effects"][0]["depends_on"]
+    assert payload["after"][0] < 0.5 * payload["before"][0]
+
+
 @pytest.mark.skipif(not DATASET.exists(), reason=f"shared dataset not present at {DATASET}")
 def test_measured_dvrk_cable_sweep_meets_the_target() -> None:
     raw = np.loadtxt(DATASET, delimiter=",")

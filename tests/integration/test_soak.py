@@ -11,7 +11,9 @@ resident memory (RSS) of each process is sampled. Figures (written to
 
 - messages lost: the demo's own count (setpoints at the slave, joint states at the service,
   estimates and true forces at the supervisor) plus the gaps seen by the test's peer;
-- memory: growth of each process's RSS per minute, by a linear fit after the first minute;
+- memory: growth of each process's RSS per minute after the first minute, by a linear fit of
+  every sample and of each minute's lowest sample (the floor: what the process keeps; the
+  pass criterion, < 1 MB/min, since samples between the floors follow the machine's load);
 - latency: p99 of the slave -> estimate latency (joint-state stamp to estimate publish, and to
   its arrival at the test's peer) in the first and in the last minute;
 - the machine: cores and load average, at the start and at the end (it is shared).
@@ -120,6 +122,25 @@ def growth_mb_per_min(samples: list[tuple[float, float]], skip_s: float = 60.0) 
     return float(np.polyfit(t / 60.0, r, 1)[0])
 
 
+def floor_growth_mb_per_min(
+    samples: list[tuple[float, float]], skip_s: float = 60.0
+) -> float | None:
+    """Slope of a linear fit of each minute's lowest RSS [MB] against time [min].
+
+    What a process keeps: memory that is never freed raises every sample, so the floor too;
+    a working set that follows the machine's load (backlogs while the process is starved,
+    drained a few seconds later) raises the samples between the floors only.
+    """
+    minutes: dict[int, float] = {}
+    for t, r in samples:
+        if t >= skip_s:
+            minute = int(t // 60.0)
+            minutes[minute] = min(r, minutes.get(minute, math.inf))
+    last_full = int(max((t for t, _ in samples), default=0.0) // 60.0)
+    points = [(60.0 * k + 30.0, r) for k, r in minutes.items() if k < last_full]
+    return growth_mb_per_min(points, skip_s=0.0) if len(points) >= 3 else None
+
+
 def p99(values: list[float]) -> float | None:
     return None if not values else float(np.percentile(values, 99))
 
@@ -213,6 +234,9 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
         "messages_lost": summary["messages_lost"],
         "test_peer": {"received": stream.counts, "gaps": stream.gaps},
         "rss_growth_mb_per_min": {k: _round(growth_mb_per_min(v)) for k, v in samples.items()},
+        "rss_floor_growth_mb_per_min": {
+            k: _round(floor_growth_mb_per_min(v)) for k, v in samples.items()
+        },
         "rss_mb_first_last": {
             k: [round(v[0][1], 1), round(v[-1][1], 1)] for k, v in samples.items()
         },
@@ -245,7 +269,7 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
     assert summary["ok"], summary["failure"]
     assert summary["messages_lost"]["total"] == 0
     assert stream.gaps == {"js": 0, "est": 0}
-    for name, growth in figures["rss_growth_mb_per_min"].items():
+    for name, growth in figures["rss_floor_growth_mb_per_min"].items():
         assert growth is not None and growth < 1.0, (name, growth)  # < 10 MB over 10 minutes
     lat = figures["latency_p99_ms"]
     first_p99 = lat["slave_to_estimate_first_minute"]
