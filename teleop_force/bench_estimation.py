@@ -96,8 +96,8 @@ def time_estimation_step(
         estimator.update(times[k % rows], q_rows[k % rows], tau_rows[k % rows])
     pin_model, pin_data = robot.model, robot.model.createData()
     q_model = [robot.to_model(q) for q in q_rows]
-    zero = np.zeros(robot.n)
-    velocity = np.full(robot.n, 0.3)
+    zero = np.zeros(pin_model.nv)  # model coordinates: nv > n with a parallelogram
+    velocity = np.full(pin_model.nv, 0.3)
     wall_clock, cpu_clock = time.perf_counter_ns, time.thread_time_ns
     update = estimator.update
     step_ns = np.empty(samples)

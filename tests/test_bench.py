@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from teleop_force.bench_util import percentiles
@@ -116,3 +117,22 @@ def test_only_selects_the_parts() -> None:
     assert everything.estimation and everything.replay and everything.messaging
     with pytest.raises(ConfigurationError, match="--only"):
         options_from_args(parser.parse_args(["--only", "identification,bogus"]))
+
+
+def test_estimation_step_timing_on_a_robot_with_more_model_joints_than_motors() -> None:
+    """The MTM's pinocchio model has 9 joints for 7 motors: the rnea reference uses nv."""
+    from teleop_force.bench_estimation import time_estimation_step
+    from teleop_force.dvrk_mtm import dvrk_mtm_description
+    from teleop_force.interchange_csv import Recording
+    from teleop_force.model_fitting import identify_model
+
+    description = dvrk_mtm_description()
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 6.0, 0.005)
+    phases = rng.uniform(0, 2 * np.pi, 7)
+    q = 0.3 * np.sin(2 * np.pi * 0.4 * t[:, None] + phases)
+    tau = 0.05 * np.cos(2 * np.pi * 0.4 * t[:, None] + phases) + rng.normal(0, 1e-3, (t.size, 7))
+    model, _ = identify_model([Recording(t, q, tau)], description, "model-cv", offsets=True)
+    timing = time_estimation_step(model, t, q, tau, samples=200, warmup=50)
+    assert timing.samples == 200
+    assert timing.rnea_us > 0.0 and timing.p50_us > 0.0
