@@ -254,8 +254,14 @@ def effect_kernel(effect: object, n_joints: int) -> tuple[int, EffectKernel] | N
         return None
     spec = effect.spec
     constant = spec.shape == "constant"
+    coefficients = effect.coefficients.tolist()
+    half = len(coefficients) // 2
     try:
-        value = _shape_kernel(spec, effect.coefficients.tolist())
+        if spec.modulation == "both":  # the basis, then the basis times sgn(qd_joint)
+            value = _shape_kernel(spec, coefficients[:half])
+            signed = _shape_kernel(spec, coefficients[half:])
+        else:
+            value = _shape_kernel(spec, coefficients)
         read = (lambda t, q, qd, tau: 0.0) if constant else _variable_reader(spec.variable)
     except ValueError:
         return None
@@ -276,6 +282,13 @@ def effect_kernel(effect: object, n_joints: int) -> tuple[int, EffectKernel] | N
 
         def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
             return value(read(t, q, qd, tau)) if qd[joint] > 0.0 else 0.0
+
+    elif spec.modulation == "both":
+
+        def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
+            x = read(t, q, qd, tau)
+            v = qd[joint]
+            return value(x) + signed(x) * ((v > 0.0) - (v < 0.0))
 
     else:
 

@@ -33,6 +33,11 @@ EFFECT_SPECS = [
     (BasisSpec(1, "tau2", "linear", "positive"), [0.05]),
     (BasisSpec(0, "qd2", "abs"), [0.003]),
     (BasisSpec(1, "t", "linear"), [1e-3]),
+    (
+        BasisSpec(1, "q1-q2", "smooth", "both", lo=-1.0, hi=1.0, count=3),
+        [1e-3, -2e-3, 3e-3, 4e-4, 0.0, -1e-3],
+    ),
+    (BasisSpec(0, "q3", "periodic", "both", frequency=1.5, harmonics=1), [1e-3, 2e-3, -5e-4, 7e-4]),
 ]
 
 
