@@ -41,7 +41,12 @@ from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification import least_squares
 from teleop_force.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
-from teleop_force.model_fitting import PreparedRecording, prepare, stage_one_friction
+from teleop_force.model_fitting import (
+    PreparedRecording,
+    _friction_regressor,
+    prepare,
+    stage_one_friction,
+)
 from teleop_force.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis
 from teleop_force.robot import RobotDescription
 
@@ -249,43 +254,44 @@ def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
     return columns
 
 
+def _selected_friction_regressor(data: _Data, friction: FrictionModel) -> np.ndarray:
+    """Return the filtered friction regressor at the selected rows, ``(rows, n, p_f)``."""
+    return np.concatenate(
+        [
+            _friction_regressor(friction, item.signals)[idx]
+            for item, idx in zip(data.prepared, data.rows, strict=True)
+        ]
+    )
+
+
 def _joint_base(
     data: _Data,
-    friction: FrictionModel,
+    friction_l: np.ndarray,
     joint: int,
     offsets: bool,
     network: FrictionModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    cols, ys = [], []
-    reach = _friction_reach(data, friction, joint)
+    """Return ``joint``'s base design and filtered torque at the selected rows.
+
+    Its friction columns are the parameters whose torque reaches the joint (``friction_l``:
+    :func:`_selected_friction_regressor`): its own basis for per-joint friction, the laws
+    reaching it through the coupling for friction in model coordinates.
+    """
+    own = friction_l[:, joint, :]
+    rigid, rest, ys = [], [], []
     for item, idx in zip(data.prepared, data.rows, strict=True):
         s = item.signals
-        parts = [s.rigid_regressor[idx, joint, :]]
-        if friction.block_diagonal:
-            own = friction.basis(joint, s.qd_rad_s)
-        else:
-            own = friction.regressor(s.qd_rad_s)[:, joint, reach]
-        phi = lowpass_batch(own, s.t_s, s.config.cutoff_hz)
-        parts.append(phi[idx])
+        rigid.append(s.rigid_regressor[idx, joint, :])
+        parts = []
         if network is not None:
             psi = lowpass_batch(network.basis(joint, s.qd_rad_s), s.t_s, s.config.cutoff_hz)
             parts.append(psi[idx])
         if offsets:
             parts.append(np.ones((idx.size, 1)))
-        cols.append(np.concatenate(parts, axis=1))
+        rest.append(np.concatenate(parts, axis=1) if parts else np.zeros((idx.size, 0)))
         ys.append(s.tau_lowpassed_nm[idx, joint])
-    return np.concatenate(cols), np.concatenate(ys)
-
-
-def _friction_reach(data: _Data, friction: FrictionModel, joint: int) -> np.ndarray:
-    """Friction parameters whose torque reaches ``joint`` anywhere in the data (a mask)."""
-    if friction.block_diagonal:
-        return np.zeros(0, dtype=bool)
-    reach = np.zeros(friction.parameters.size, dtype=bool)
-    for item in data.prepared:
-        phi = friction.regressor(item.signals.qd_rad_s)[:, joint, :]
-        reach |= np.any(phi != 0.0, axis=0)
-    return reach
+    columns = (np.concatenate(rigid), own[:, np.any(own != 0.0, axis=0)], np.concatenate(rest))
+    return np.concatenate(columns, axis=1), np.concatenate(ys)
 
 
 def _candidates(
@@ -455,8 +461,9 @@ def trace_residual(
     if options.friction == "wn":
         network = _baseline_network(prepared, description, base, friction, offsets, stage_one)
     designs = []
+    friction_l = _selected_friction_regressor(data, friction)
     for j in range(n):
-        columns, y = _joint_base(data, friction, j, offsets, network)
+        columns, y = _joint_base(data, friction_l, j, offsets, network)
         designs.append(_Design(columns, y, data.folds, options.folds, options.ridge))
     # The velocities the friction maps beyond each joint's own: the network's inputs, or the
     # model-coordinate laws that reach the joint through the coupling.
@@ -680,9 +687,7 @@ def _final_model(
         m = int(v.sum())
         a = np.zeros((m, n, total))
         a[:, :, :r] = s.rigid_regressor[v]
-        raw = friction.regressor(s.qd_rad_s)
-        phi = lowpass_batch(raw.reshape(raw.shape[0], -1), s.t_s, config.cutoff_hz)
-        a[:, :, r : r + p_f] = phi.reshape(raw.shape)[v]
+        a[:, :, r : r + p_f] = _friction_regressor(friction, s)[v]
         col = r + p_f
         if offsets:
             a[:, :, col : col + n] = np.eye(n)

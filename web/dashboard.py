@@ -679,9 +679,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
-        trimmer = MemoryTrimmer().start()  # a long-running process: RSS follows what is live
-        dashboard.wait()
-        trimmer.stop()
+        with MemoryTrimmer():  # a long-running process: RSS follows what is live
+            dashboard.wait()
         dashboard.stop()
     finally:
         session.close()
