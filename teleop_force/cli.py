@@ -118,7 +118,11 @@ def _cmd_residual(args: argparse.Namespace) -> int:
 
     recordings = _load_recordings(args.data, robot=args.robot)
     description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
-    options = ResidualOptions(friction=args.friction, offsets=True if args.offsets else None)
+    options = ResidualOptions(
+        friction=args.friction,
+        offsets=True if args.offsets else None,
+        effect_placement=args.effect_placement,
+    )
     report = trace_residual(recordings, description, options)
     if args.output:
         path = write_residual_report(report, Path(args.output), list(description.joint_names))
@@ -342,6 +346,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--offsets",
         action="store_true",
         help="fit a constant torque per joint with the friction (default: only without a body)",
+    )
+    p.add_argument(
+        "--effect-placement",
+        choices=("auto", "motor", "model", "either"),  # residual.EFFECT_PLACEMENTS
+        default="auto",
+        help="where a found effect acts: on its motor joint, at the model joint (through the"
+        " coupling), either (model joint if confirmed); auto: either with model-cv friction",
     )
     p.add_argument("--json", action="store_true")
     p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")

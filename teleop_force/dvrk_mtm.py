@@ -40,6 +40,7 @@ The native data files (``mtm_traj_*_results.csv``) are read by :func:`read_mtm_c
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -226,14 +227,17 @@ class MtmTrajectory:
     Attributes:
         recording: The samples on the uniform 200 Hz grid ``t = row / 200`` from the first to
             the last distinct row, file coordinates: angles and torques of the distinct rows,
-            linear in time across the dropped ones; the angles low-passed without phase shift
-            at ``smoothing_hz`` (see :func:`read_mtm_csv`).
+            linear in time across the dropped ones; the angles' motion above
+            ``velocity_crossover_hz`` from the logged velocities, and the angles low-passed
+            without phase shift at ``smoothing_hz`` (see :func:`read_mtm_csv`).
         kept_rows: 0-based row numbers of the distinct rows.
         q_file_rad, qd_file_rad_s, tau_file_nm: The file's columns at those rows.
         total_rows: Rows in the file.
         repeated_rows: Rows dropped because their joint state (angles and velocities)
             repeated the previous row's (asynchronous logging).
         smoothing_hz: Cut-off of the angle smoothing (``None``: none).
+        velocity_crossover_hz: Above it the angles' motion is the logged velocities'
+            (``None``: the angles alone).
 
     """
 
@@ -245,6 +249,7 @@ class MtmTrajectory:
     total_rows: int
     repeated_rows: int
     smoothing_hz: float | None
+    velocity_crossover_hz: float | None = None
 
     def __post_init__(self) -> None:
         n = self.kept_rows.size
@@ -261,6 +266,10 @@ class MtmTrajectory:
             if self.smoothing_hz
             else ""
         )
+        if self.velocity_crossover_hz:
+            smoothing += (
+                f"; motion above {self.velocity_crossover_hz:g} Hz from the logged velocities"
+            )
         return (
             f"{self.recording.source}: dropped {self.repeated_rows} of {self.total_rows} rows "
             f"({self.repeated_rows / self.total_rows:.1%}) repeating the previous joint state; "
@@ -276,13 +285,17 @@ def looks_like_mtm_csv(first_line: str) -> bool:
     return all(_is_float(c) for c in cells)
 
 
-#: Default zero-phase smoothing of the logged angles [Hz] (the excitation is below 1 Hz).
-DEFAULT_SMOOTHING_HZ = 5.0
+#: Default zero-phase smoothing of the angles [Hz] (the excitation is below 1 Hz).
+DEFAULT_SMOOTHING_HZ = 6.0
+#: Default crossover [Hz] above which the angles' motion comes from the logged velocities.
+DEFAULT_VELOCITY_CROSSOVER_HZ = 3.0
 _SMOOTHING_ORDER = 4
 
 
 def read_mtm_csv(
-    path: str | os.PathLike[str], smoothing_hz: float | None = DEFAULT_SMOOTHING_HZ
+    path: str | os.PathLike[str],
+    smoothing_hz: float | None = DEFAULT_SMOOTHING_HZ,
+    velocity_crossover_hz: float | None = DEFAULT_VELOCITY_CROSSOVER_HZ,
 ) -> MtmTrajectory:
     """Read a native ``mtm_traj_*_results.csv`` (no header, 21 columns, 200 Hz).
 
@@ -291,16 +304,23 @@ def read_mtm_csv(
     instants (consecutive differences scatter far more than the logged velocity allows),
     which the project's momentum-form regressor would differentiate into noise, and the
     project's first-order filters assume steady sampling. So the distinct rows are put back
-    on the uniform 200 Hz grid (linear in time across the dropped rows) and the angles are
-    low-passed forward and backward (4th-order Butterworth, no phase shift, so no bias) at
-    ``smoothing_hz``, well above the excitation (below 1 Hz) and below the jitter. The
-    torques are left as logged: the project filters them itself.
+    on the uniform 200 Hz grid (linear in time across the dropped rows). Above
+    ``velocity_crossover_hz`` the angles' motion is taken from the logged velocities instead
+    (a zero-phase complementary filter: the angles' low band plus the high band of the
+    velocities' integral): the arm's small 3-10 Hz vibrations, which the motor torques carry,
+    are in the velocities and lost in the jittered angles. The angles are then low-passed
+    forward and backward (4th-order Butterworth, no phase shift, so no bias) at
+    ``smoothing_hz``. The torques are left as logged: the project filters them itself.
     """
     path = Path(path)
-    if smoothing_hz is not None and not 0 < smoothing_hz < SAMPLE_RATE_HZ / 2:
-        raise DataError(
-            f"smoothing_hz must be in (0, {SAMPLE_RATE_HZ / 2:g}), got {smoothing_hz}", path=path
-        )
+    for name, value in (
+        ("smoothing_hz", smoothing_hz),
+        ("velocity_crossover_hz", velocity_crossover_hz),
+    ):
+        if value is not None and not 0 < value < SAMPLE_RATE_HZ / 2:
+            raise DataError(
+                f"{name} must be in (0, {SAMPLE_RATE_HZ / 2:g}), got {value}", path=path
+            )
     table = _read_table(path)
     state = table[:, : 2 * N_JOINTS]
     repeated = np.zeros(len(table), dtype=bool)
@@ -313,14 +333,17 @@ def read_mtm_csv(
     t_grid = grid_rows / SAMPLE_RATE_HZ
     q_grid = _interpolate(t_grid, t_kept, table[kept, :N_JOINTS])
     tau_grid = _interpolate(t_grid, t_kept, table[kept, 2 * N_JOINTS :])
+    filtered = smoothing_hz is not None or velocity_crossover_hz is not None
+    if filtered and t_grid.size <= 3 * (2 * _SMOOTHING_ORDER + 1):
+        raise DataError(f"only {t_grid.size} samples: too short to smooth", path=path)
+    if velocity_crossover_hz is not None:
+        qd_grid = _interpolate(t_grid, t_kept, table[kept, N_JOINTS : 2 * N_JOINTS])
+        integral = np.zeros_like(qd_grid)
+        integral[1:] = np.cumsum(0.5 * (qd_grid[1:] + qd_grid[:-1]), axis=0) / SAMPLE_RATE_HZ
+        low = _zero_phase(velocity_crossover_hz)
+        q_grid = low(q_grid) + integral - low(integral)
     if smoothing_hz is not None:
-        if t_grid.size <= 3 * (2 * _SMOOTHING_ORDER + 1):
-            raise DataError(f"only {t_grid.size} samples: too short to smooth", path=path)
-        b, a = butter(_SMOOTHING_ORDER, smoothing_hz / (SAMPLE_RATE_HZ / 2))
-        # Pad with one second of odd reflection: scipy's default (15 samples) leaves start
-        # and end transients that the momentum derivative turns into torque spikes.
-        padding = min(t_grid.size - 1, int(SAMPLE_RATE_HZ))
-        q_grid = filtfilt(b, a, q_grid, axis=0, padlen=padding)
+        q_grid = _zero_phase(smoothing_hz)(q_grid)
     recording = Recording(t_s=t_grid, q_rad=q_grid, tau_nm=tau_grid, source=path)
     return MtmTrajectory(
         recording,
@@ -331,7 +354,20 @@ def read_mtm_csv(
         len(table),
         int(repeated.sum()),
         smoothing_hz,
+        velocity_crossover_hz,
     )
+
+
+def _zero_phase(cutoff_hz: float) -> Callable[[np.ndarray], np.ndarray]:
+    """4th-order Butterworth low-pass at ``cutoff_hz`` run forward and backward, per column."""
+    b, a = butter(_SMOOTHING_ORDER, cutoff_hz / (SAMPLE_RATE_HZ / 2))
+
+    def low(x: np.ndarray) -> np.ndarray:
+        # Pad with one second of odd reflection: scipy's default (15 samples) leaves start
+        # and end transients that the momentum derivative turns into torque spikes.
+        return filtfilt(b, a, x, axis=0, padlen=min(x.shape[0] - 1, int(SAMPLE_RATE_HZ)))
+
+    return low
 
 
 def _interpolate(t_new: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -251,6 +251,11 @@ def _effects(value: object, n_joints: int) -> tuple[Any, ...]:
                 f"acts on joint {joint!r}, outside 0..{n_joints - 1}", column=field
             )
         file_floats(effect.coefficients, f"{field}.coefficients")
+        if effect.reach is not None and effect.reach.size != n_joints:
+            raise ModelFileError(
+                f"reach has {effect.reach.size} weights, the model has {n_joints} joints",
+                column=f"{field}.reach",
+            )
         out.append(effect)
     return tuple(out)
 

@@ -1,4 +1,4 @@
-"""Effects the residual loop adds to a model: torques on one joint, linear in their parameters.
+"""Effects the residual loop adds to a model: torques linear in their parameters.
 
 An effect is a :class:`BasisSpec` (which variable, which fixed shape, which modulation) and
 its coefficients. Variables are named as in CONTRACT.md: ``q2`` (angle), ``q2-q3`` (angle
@@ -9,11 +9,16 @@ motor torque: the measured torque contains the very residual being explained, an
 variable it "explains" 15-20 % of a clean recording's friction misfit by itself (measured on
 simulated clean data). The model torque carries the same load (gravity, inertia, spring)
 without that leak.
+
+An effect acts on the joint it was found on, or, found on a coupled robot whose physics acts at
+its model joints, at that model joint, reaching the motors through the coupling
+(:attr:`FoundEffect.reach`).
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -181,38 +186,82 @@ class BasisSpec:
 
 
 class FoundEffect:
-    """An effect with identified coefficients: ``tau_joint = basis @ coefficients``."""
+    """An effect with identified coefficients: ``tau_joint = basis @ coefficients``.
 
-    def __init__(self, spec: BasisSpec, coefficients: np.ndarray, explained: float = 0.0) -> None:
+    ``reach``: where the torque lands, one weight per motor joint (None: on :attr:`joint`
+    alone). An effect acting at a *model* joint ``k`` of a coupled robot reaches the motors
+    through the coupling like any model torque, ``tau_motor = T^T e_k tau``: its reach is row
+    ``k`` of ``T`` (scaled so that the weight on :attr:`joint` is 1), e.g. a cable spring at the
+    dVRK MTM's wrist platform loads joints 2 and 3 with the cable's ratio.
+    """
+
+    def __init__(
+        self,
+        spec: BasisSpec,
+        coefficients: np.ndarray,
+        explained: float = 0.0,
+        reach: np.ndarray | None = None,
+    ) -> None:
         """Bind a basis to its coefficients (``explained``: held-out variance fraction)."""
         coefficients = np.asarray(coefficients, dtype=float).reshape(-1)
         if coefficients.shape != (spec.size,):
             raise ModelError(f"effect {spec.describe()} needs {spec.size} coefficients")
+        if reach is not None:
+            reach = np.asarray(reach, dtype=float).reshape(-1)
+            if reach.size <= spec.joint or not np.all(np.isfinite(reach)):
+                raise ModelError(
+                    f"effect {spec.describe()}: reach needs a finite weight per joint"
+                    f" (at least {spec.joint + 1}), got {reach.tolist()}"
+                )
         self.spec = spec
         self.coefficients = coefficients
         self.explained = float(explained)
+        self.reach = reach
 
     @property
     def joint(self) -> int:
-        """Joint the effect acts on (0-based)."""
+        """Joint the effect was found on (0-based)."""
         return self.spec.joint
 
+    def weights(self, n_joints: int) -> np.ndarray:
+        """Motor torque per unit of the effect's torque (``n_joints``,)."""
+        if self.reach is None:
+            return np.eye(n_joints)[self.spec.joint]
+        if self.reach.size != n_joints:
+            raise ModelError(
+                f"effect {self.spec.describe()} reaches {self.reach.size} joints, not {n_joints}"
+            )
+        return self.reach
+
     def torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Torque on all joints (N x n), non-zero on :attr:`joint` only."""
-        out = np.zeros_like(np.asarray(q, dtype=float))
-        out[:, self.spec.joint] = self.spec.basis(t_s, q, qd, tau) @ self.coefficients
-        return out
+        """Torque on all joints (N x n): on :attr:`joint`, or spread by :attr:`reach`."""
+        q = np.asarray(q, dtype=float)
+        value = self.spec.basis(t_s, q, qd, tau) @ self.coefficients
+        return value[:, None] * self.weights(q.shape[1])[None, :]
 
     def to_dict(self) -> dict[str, Any]:
         """Serialise."""
         spec = asdict(self.spec)
         spec["scales"] = list(self.spec.scales)
-        return {
+        out = {
             "kind": "basis",
             "spec": spec,
             "coefficients": self.coefficients.tolist(),
             "explained": self.explained,
         }
+        if self.reach is not None:
+            out["reach"] = self.reach.tolist()
+        return out
+
+
+def describe_reach(joint: int, reach: Sequence[float] | None) -> str:
+    """Where an effect acts, for reports: ``joint 4`` or ``j2 +0.6697, j3 -0.6697, j4 +1``.
+
+    ``joint`` is 1-based (as in the residual JSON); ``reach`` the motor weights or None.
+    """
+    if reach is None:
+        return f"joint {joint}"
+    return ", ".join(f"j{i + 1} {w:+.4g}" for i, w in enumerate(reach) if w != 0.0)
 
 
 def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
@@ -225,4 +274,5 @@ def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
         BasisSpec(**spec),
         np.asarray(data["coefficients"], dtype=float),
         float(data.get("explained", 0.0)),
+        None if data.get("reach") is None else np.asarray(data["reach"], dtype=float),
     )

@@ -238,8 +238,11 @@ class ForceEstimator:
         self.spring_stiffness = np.zeros(len(description.springs))
         if description.has_rigid_body and model.base is not None:
             nominal = full_parameters(description, np.zeros(len(description.springs)))
-            full = model.base.representative(model.base_values, nominal)
             n_links = 10 * description.n_links
+            # pinocchio's composite inertias need positive subtree masses
+            full = model.base.representative_with_masses(
+                model.base_values, nominal, range(0, n_links, 10)
+            )
             equivalent = description.with_link_parameters(full[:n_links]).with_rotor_inertia(
                 full[n_links : n_links + self.n]
             )
@@ -248,10 +251,16 @@ class ForceEstimator:
         self._rigid = None if self.robot is None else _RigidBody(self.robot, self.spring_stiffness)
         self._has_tip = self.robot is not None and self.robot.description.tip_frame is not None
         self._friction = _Friction(model)
-        self._effects: list[Any] = []  # (joint, kernel) or an effect with .torque()
+        # ((joint, weight), ...), kernel) or an effect with .torque()
+        self._effects: list[Any] = []
         for effect in model.effects:
             kernel = effect_kernel(effect, self.n)
-            self._effects.append(effect if kernel is None else kernel)
+            if kernel is None:
+                self._effects.append(effect)
+                continue
+            weights = effect.weights(self.n)
+            reach = tuple((j, float(w)) for j, w in enumerate(weights) if w != 0.0)
+            self._effects.append((reach, kernel[1]))
         config = model.filter_config
         self._lag = config.torque_lag_samples
         self._omega_v = _TWO_PI * config.velocity_cutoff_hz
@@ -271,8 +280,10 @@ class ForceEstimator:
         """Add the found effects' torques to ``other`` (in place); ``load`` feeds ``tau<j>``."""
         for entry in self._effects:
             if type(entry) is tuple:
-                joint, kernel = entry
-                other[joint] += kernel(t, q, qd, load)
+                reach, kernel = entry
+                value = kernel(t, q, qd, load)
+                for joint, weight in reach:
+                    other[joint] += weight * value
             else:
                 row = entry.torque(
                     np.asarray([t]), np.asarray([q]), np.asarray([qd]), np.asarray([load])

@@ -119,6 +119,65 @@ class BaseParameters:
         full[self.independent] = base - self.dependency @ full[self.dependent]
         return full
 
+    def representative_with_masses(
+        self,
+        base: np.ndarray,
+        nominal_full: np.ndarray,
+        mass_indices: Sequence[int],
+        min_mass: float = 1e-2,
+    ) -> np.ndarray:
+        """Return a full parameter vector with these base parameters and every mass >= ``min_mass``.
+
+        :meth:`representative` keeps the dependent parameters nominal, which can leave a mass
+        that is an independent parameter negative (the MTM's elbow link: -0.74 kg). Such a
+        vector has the right base parameters, but pinocchio's composite inertias clamp a
+        negative subtree mass to machine epsilon and divide by it (``crba`` returned 1e29).
+        So the dependent parameters are moved, as little as possible (relative to their
+        nominal size), until every mass is at least ``min_mass``; the base parameters, and
+        so every torque, are unchanged. Raises ModelError when no choice can do it.
+        """
+        full = self.representative(base, nominal_full)
+        masses = np.asarray(mass_indices, dtype=int)
+        if np.all(full[masses] >= min_mass):
+            return full
+        from scipy.optimize import LinearConstraint, minimize
+
+        position = {int(i): k for k, i in enumerate(self.independent)}
+        dep_position = {int(d): k for k, d in enumerate(self.dependent)}
+        rows, bounds = [], []
+        for i in masses:
+            row = np.zeros(self.dependent.size)
+            if int(i) in dep_position:  # the mass itself is free
+                row[dep_position[int(i)]] = 1.0
+                rows.append(row)
+                bounds.append(min_mass)
+            else:  # independent: base - K pi_D >= min_mass, i.e. -K pi_D >= min_mass - base
+                k = position[int(i)]
+                rows.append(-self.dependency[k])
+                bounds.append(min_mass - base[k])
+        nominal_dep = np.asarray(nominal_full, dtype=float)[self.dependent]
+        scale = np.abs(nominal_dep) + 1e-2
+        constraint = LinearConstraint(np.array(rows) * scale[None, :], np.array(bounds), np.inf)
+        result = minimize(
+            lambda z: float(np.sum((z - nominal_dep / scale) ** 2)),
+            nominal_dep / scale,
+            jac=lambda z: 2.0 * (z - nominal_dep / scale),
+            constraints=[constraint],
+            method="SLSQP",
+        )
+        dependent = result.x * scale
+        full = np.asarray(nominal_full, dtype=float).copy()
+        full[self.dependent] = dependent
+        full[self.independent] = base - self.dependency @ dependent
+        if not np.all(full[masses] >= min_mass * (1.0 - 1e-6)):
+            low = [self.full_names[i] for i in masses if full[i] < min_mass * (1.0 - 1e-6)]
+            raise ModelError(
+                f"no equivalent rigid body with positive masses: {', '.join(low)} stay below"
+                f" {min_mass} kg whatever the unidentifiable parameters (the identified base"
+                " parameters are not physical)"
+            )
+        return full
+
     def to_dict(self) -> dict[str, object]:
         """Serialise."""
         return {

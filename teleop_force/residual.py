@@ -8,6 +8,17 @@ per-block normal equations so hundreds of candidates cost little. An effect is a
 it lowers the joint's held-out RMS by ``min_rms_gain`` (relative) and helps in most blocks; the
 search then repeats until nothing significant is left.
 
+Whole-model confirmation. The search scores each joint with its own copy of the rigid-body
+parameters; the kept model shares them. The best candidates are therefore refitted in the
+whole model (:class:`_JointCheck`: rigid body, stage-one friction, offsets and the effects so
+far, all joints) on the same blocks, and must keep their gain without making an explained joint
+worse. A periodic recording (an identification trajectory repeated, :func:`trajectory_period`)
+is also cut by phase: a held-out block is then the same stretch of every period, so its poses
+are held out in all of them (with time blocks, the same poses a period later are in the
+training blocks, and a pattern of the trajectory's poses passes for an effect). An effect that
+raises an explained joint's phase-held-out error is refused (phase blocks only veto: they are
+too strict to decide, an effect's variable may not reach a held-out phase's values elsewhere).
+
 Candidates are linear in their parameters (:mod:`teleop_force.effects`): smooth or periodic
 functions of any joint angle or angle difference (optionally direction-modulated: position
 dependent friction), of other joints' velocities (coupling), of the motor torque (load
@@ -20,6 +31,16 @@ transients after a motion reversal, :func:`reversal_transient_basis`): on a peri
 trajectory every variable correlates with the velocities, and friction the static velocity
 map cannot follow (the velocity estimate lags the true velocity at a reversal, where dry
 friction flips) would otherwise be named after the joint angle at which the reversals happen.
+
+Effects at the model joints (``effect_placement``). With friction in model coordinates
+(``model-cv``) the robot's physics is taken to act at its model joints first: an effect found
+on motor ``j`` is tried as a torque at model joint ``j``, reaching the motors through the
+coupling, ``T^T e_j`` (row ``j`` of the coupling, :attr:`FoundEffect.reach`), like the
+friction, and kept there if the whole model confirms it, else on motor ``j`` alone. On the dVRK
+MTM the cable/spring torque of the wrist platform is found on joint 4 and loads joints 2 and 3
+with the cable's ratio (+-0.6697), instead of being left to the rigid body there. The held-out
+blocks of one trajectory score the two placements about equally; a held-out trajectory does
+not (docs/robots.md).
 """
 
 from __future__ import annotations
@@ -52,6 +73,8 @@ from teleop_force.robot import RobotDescription
 
 #: Friction of the model the residual is taken from.
 RESIDUAL_FRICTION_KINDS: tuple[str, ...] = ("cv", "coupled-cv", "wn", ModelCoordinateFriction.kind)
+#: Where a found effect may act (:attr:`ResidualOptions.effect_placement`).
+EFFECT_PLACEMENTS: tuple[str, ...] = ("auto", "motor", "model", "either")
 
 
 @dataclass(frozen=True)
@@ -72,6 +95,16 @@ class ResidualOptions:
     ridge: float = 1e-4
     #: Fit a constant torque per joint; None: only without rigid-body terms.
     offsets: bool | None = None
+    #: Candidates, best first, checked against the whole model per step (:class:`_JointCheck`).
+    confirm_candidates: int = 20
+    #: Also cut periodic recordings into held-out blocks by phase (:func:`trajectory_period`)
+    #: and refuse an effect that raises a joint's error on them (:func:`_confirm`).
+    phase_folds: bool = True
+    #: Where an effect found on motor j acts (:data:`EFFECT_PLACEMENTS`): ``motor`` (on j
+    #: alone), ``model`` (at model joint j, reaching the motors through the coupling,
+    #: :func:`effect_reaches`), ``either`` (the model joint if the whole model confirms it,
+    #: else j alone); ``auto``: ``either`` with friction in model coordinates, else ``motor``.
+    effect_placement: str = "auto"
 
     def __post_init__(self) -> None:
         if self.folds < 3:
@@ -80,13 +113,18 @@ class ResidualOptions:
             raise ConfigurationError("min_rms_gain must be in (0, 1)")
         if not 0 <= self.min_control_gain < 1:
             raise ConfigurationError("min_control_gain must be in [0, 1)")
-        if self.friction not in RESIDUAL_FRICTION_KINDS:
-            raise ConfigurationError(
-                f"residual friction must be one of {', '.join(RESIDUAL_FRICTION_KINDS)},"
-                f" got {self.friction!r}"
-            )
+        for what, value, choices in (
+            ("residual friction", self.friction, RESIDUAL_FRICTION_KINDS),
+            ("effect placement", self.effect_placement, EFFECT_PLACEMENTS),
+        ):
+            if value not in choices:
+                raise ConfigurationError(
+                    f"{what} must be one of {', '.join(choices)}, got {value!r}"
+                )
         if self.decimate < 1:
             raise ConfigurationError("decimate must be >= 1")
+        if self.confirm_candidates < 1:
+            raise ConfigurationError("confirm_candidates must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -97,10 +135,13 @@ class TracedEffect:
     explained: float
     joint_rms_before: float
     joint_rms_after: float
+    #: Motor torque per unit of the effect's torque when it acts at a model joint (None: on
+    #: the joint alone).
+    reach: tuple[float, ...] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Return the CONTRACT.md form."""
-        return {
+        """Return the CONTRACT.md form (``reach`` only for an effect at a model joint)."""
+        out: dict[str, Any] = {
             "joint": self.spec.joint + 1,
             "depends_on": self.spec.depends_on(),
             "kind": self.spec.kind,
@@ -109,6 +150,9 @@ class TracedEffect:
             "joint_rms_before": float(self.joint_rms_before),
             "joint_rms_after": float(self.joint_rms_after),
         }
+        if self.reach is not None:
+            out["reach"] = [float(w) for w in self.reach]
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,6 +242,152 @@ class _Design:
         return float(np.sqrt(errors.sum() / max(self.yy.sum(), 1e-300)))
 
 
+class _JointCheck:
+    """Held-out relative RMS per joint of the whole model: one rigid body for all joints.
+
+    The per-joint designs give each joint its own copy of the rigid-body parameters, which is
+    what makes scoring hundreds of candidates cheap, but a joint's copy can bend to what a
+    candidate offers; the model that is kept shares them. A candidate the search accepts is
+    therefore confirmed here, on the same held-out blocks.
+    """
+
+    def __init__(
+        self, columns: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float
+    ) -> None:
+        self.columns = columns  # (rows, n, p)
+        self.y = y  # (rows, n)
+        self.folds = folds
+        self.n_folds = n_folds
+        self.ridge = ridge
+        self._base: np.ndarray | None = None
+
+    def add(self, extra: np.ndarray) -> None:
+        """Make ``extra`` ``(rows, n, k)`` part of the model."""
+        self.columns = np.concatenate((self.columns, extra), axis=2)
+        self._base = None
+
+    def relative_rms(self, extra: np.ndarray | None = None) -> np.ndarray:
+        """Held-out relative RMS per joint, with ``extra`` columns if given."""
+        if extra is None and self._base is not None:
+            return self._base
+        a = self.columns if extra is None else np.concatenate((self.columns, extra), axis=2)
+        _, n, p = a.shape
+        squared = np.zeros(n)
+        for f in range(self.n_folds):
+            held = self.folds == f
+            train = a[~held].reshape(-1, p)
+            gram = train.T @ train
+            scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+            scaled = gram / np.outer(scale, scale) + self.ridge * np.eye(p)
+            cross = train.T @ self.y[~held].reshape(-1) / scale
+            try:
+                theta = scipy.linalg.solve(scaled, cross, assume_a="pos", check_finite=False)
+            except np.linalg.LinAlgError:
+                theta = np.linalg.lstsq(scaled, cross, rcond=None)[0]
+            error = self.y[held] - a[held] @ (theta / scale)
+            squared += np.sum(error**2, axis=0)
+        out = np.sqrt(squared / np.clip(np.sum(self.y**2, axis=0), 1e-300, None))
+        if extra is None:
+            self._base = out
+        return out
+
+
+def _placed(cols: np.ndarray, joint: int, reach: np.ndarray | None, n: int) -> np.ndarray:
+    """Candidate columns ``(rows, k)`` on ``joint``, or spread by ``reach``: ``(rows, n, k)``."""
+    weights = np.eye(n)[joint] if reach is None else reach
+    return cols[:, None, :] * weights[None, :, None]
+
+
+#: A joint whose held-out relative RMS is above this is not explained by the model (noise or
+#: what no candidate has yet taken): whether a candidate makes it worse is not judged on it.
+EXPLAINED_LIMIT = 0.5
+
+
+def _worse(before: np.ndarray, after: np.ndarray, tolerance: float) -> np.ndarray:
+    """Joints the model explains (:data:`EXPLAINED_LIMIT`) whose error rose by ``tolerance``."""
+    return (before < EXPLAINED_LIMIT) & (after > before * (1.0 + tolerance))
+
+
+def _confirm(
+    check: _JointCheck,
+    veto: _JointCheck | None,
+    before: np.ndarray,
+    cols: np.ndarray,
+    joint: int,
+    reach: np.ndarray | None,
+    alone_too: bool,
+    options: ResidualOptions,
+) -> dict[str, Any]:
+    """Check a candidate against the whole model: at its model joint first, then alone.
+
+    A placement is confirmed when it lowers ``joint``'s held-out RMS by ``min_rms_gain`` and
+    raises no explained joint's (:func:`_worse`) by more than that, and (``veto``: the same
+    model on blocks held out by phase) raises no explained joint's phase-held-out RMS by more
+    than that either: an effect that only fits the poses of a repeated trajectory fails there.
+    The model joint (``reach``) is kept when it is confirmed; ``joint`` alone is tried after
+    it when ``alone_too`` (or without a ``reach``). Returns ``confirmed``, ``reach`` (None: the
+    joint alone) and the last placement's figures.
+    """
+    result: dict[str, Any] = {}
+    placements: tuple[np.ndarray | None, ...] = (None,)
+    if reach is not None:
+        placements = (reach, None) if alone_too else (reach,)
+    for placement in placements:
+        after = check.relative_rms(_placed(cols, joint, placement, len(before)))
+        gain = 1.0 - after[joint] / max(before[joint], 1e-300)
+        worse = _worse(before, after, options.min_rms_gain)
+        if veto is not None:
+            phase_after = veto.relative_rms(_placed(cols, joint, placement, len(before)))
+            worse |= _worse(veto.relative_rms(), phase_after, options.min_rms_gain)
+        result = {
+            "confirmed": bool(gain >= options.min_rms_gain and not worse.any()),
+            "reach": placement,
+            "gain": float(gain),
+            "worse_joints": [int(k) + 1 for k in np.flatnonzero(worse)],
+            "after": after.tolist(),
+        }
+        if result["confirmed"]:
+            break
+    return result
+
+
+def _joint_check(
+    data: _Data,
+    friction_l: np.ndarray,
+    offsets: bool,
+    network: FrictionModel | None,
+    options: ResidualOptions,
+    folds: np.ndarray,
+) -> _JointCheck:
+    """Return the whole model's design at the selected rows: rigid body, friction, offsets."""
+    n = friction_l.shape[1]
+    rigid, network_cols, ys = [], [], []
+    for item, idx in zip(data.prepared, data.rows, strict=True):
+        s = item.signals
+        rigid.append(s.rigid_regressor[idx])
+        ys.append(s.tau_lowpassed_nm[idx])
+        if network is not None:
+            blocks = [
+                lowpass_batch(network.basis(j, s.qd_rad_s), s.t_s, s.config.cutoff_hz)[idx]
+                for j in range(n)
+            ]
+            placed = np.zeros((idx.size, n, sum(b.shape[1] for b in blocks)))
+            col = 0
+            for j, b in enumerate(blocks):
+                placed[:, j, col : col + b.shape[1]] = b
+                col += b.shape[1]
+            network_cols.append(placed)
+    friction = friction_l[:, :, np.any(friction_l != 0.0, axis=(0, 1))]
+    parts = [np.concatenate(rigid), friction]
+    if network_cols:
+        parts.append(np.concatenate(network_cols))
+    if offsets:
+        parts.append(np.broadcast_to(np.eye(n), (friction.shape[0], n, n)))
+    return _JointCheck(
+        np.concatenate(parts, axis=2), np.concatenate(ys), folds, options.folds, options.ridge
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class _Data:
     """Stacked, decimated valid samples of all recordings."""
@@ -208,12 +398,14 @@ class _Data:
     raw: dict[str, np.ndarray]
     loads: list[np.ndarray]
     cache: dict[BasisSpec, np.ndarray] = field(default_factory=dict)
+    #: Folds by phase (None unless every recording is periodic, :func:`trajectory_period`).
+    phase_folds: np.ndarray | None = None
 
 
 def _select_rows(
     prepared: Sequence[PreparedRecording], options: ResidualOptions, base_values: np.ndarray
 ) -> _Data:
-    rows, fold_ids = [], []
+    rows, fold_ids, phase_ids = [], [], []
     t, q, qd, tau, loads = [], [], [], [], []
     for item in prepared:
         s = item.signals
@@ -224,6 +416,13 @@ def _select_rows(
         n_blocks = options.folds * options.blocks_per_fold
         block = (np.arange(idx.size) * n_blocks) // idx.size
         fold_ids.append(block % options.folds)
+        period = (
+            trajectory_period(s.t_s[s.valid], s.q_rad[s.valid]) if options.phase_folds else None
+        )
+        if period is not None:
+            phase = np.mod(s.t_s[idx] - s.t_s[idx[0]], period) / period
+            phase_block = np.minimum((phase * n_blocks).astype(int), n_blocks - 1)
+            phase_ids.append(phase_block % options.folds)
         t.append(s.t_s)
         q.append(s.q_rad)
         qd.append(s.qd_rad_s)
@@ -236,7 +435,65 @@ def _select_rows(
         "qd": np.concatenate(qd),
         "tau": np.concatenate(tau),
     }
-    return _Data(list(prepared), rows, np.concatenate(fold_ids), raw, loads)
+    phase_folds = np.concatenate(phase_ids) if len(phase_ids) == len(rows) else None
+    return _Data(
+        list(prepared), rows, np.concatenate(fold_ids), raw, loads, phase_folds=phase_folds
+    )
+
+
+#: Largest RMS difference between the angles and the angles one period later, relative to
+#: their spread, for a recording to count as periodic.
+PERIOD_TOLERANCE = 0.1
+
+
+def trajectory_period(
+    t_s: np.ndarray, q_rad: np.ndarray, min_period_s: float = 1.0
+) -> float | None:
+    """Period of a repeated trajectory [s], or None when the angles do not repeat.
+
+    The shortest lag (at least ``min_period_s``, at most half the recording, so two periods
+    are seen) at which the angles come back to themselves: a local minimum of
+    ``rms(q(t + L) - q(t))`` (each moving joint scaled by its spread) below
+    :data:`PERIOD_TOLERANCE`, searched on at most about 4000 samples and refined at full
+    rate (the coarse step must stay well below the period: a tenth of it or less). Uniform
+    sampling is assumed (the median interval converts lags to time).
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    q_rad = np.asarray(q_rad, dtype=float)
+    if t_s.size < 8 or q_rad.shape[0] != t_s.size:
+        return None
+    dt = float(np.median(np.diff(t_s)))
+    spread = q_rad.std(axis=0)
+    moving = spread > 1e-6
+    if not dt > 0 or not moving.any():
+        return None
+    q = q_rad[:, moving] / spread[moving]
+
+    def mismatch(x: np.ndarray, lag: int) -> float:
+        return float(np.sqrt(np.mean((x[lag:] - x[:-lag]) ** 2)))
+
+    step = max(1, q.shape[0] // 4000)
+    coarse = q[::step]
+    first = max(1, int(np.ceil(min_period_s / (dt * step))))
+    last = coarse.shape[0] // 2
+    if last <= first + 1:
+        return None
+    lags = np.arange(first, last + 1)
+    values = np.array([mismatch(coarse, int(lag)) for lag in lags])
+    # The coarse lags may straddle the period: their dips are refined at full rate, shortest
+    # first, and the first that comes back within the tolerance is the period.
+    dips = np.flatnonzero(
+        (values[1:-1] <= values[:-2])
+        & (values[1:-1] <= values[2:])
+        & (values[1:-1] < 5 * PERIOD_TOLERANCE)
+    )
+    for dip in dips:
+        centre = int(lags[dip + 1]) * step
+        fine = range(max(1, centre - step), min(q.shape[0] // 2, centre + step) + 1)
+        lag = min(fine, key=lambda k: mismatch(q, k))
+        if mismatch(q, lag) < PERIOD_TOLERANCE:
+            return lag * dt
+    return None
 
 
 def _filtered_columns(data: _Data, spec: BasisSpec) -> np.ndarray:
@@ -442,6 +699,23 @@ def _dominant_frequency(x: np.ndarray, residual: np.ndarray, span: float) -> flo
     return float(grid[int(np.argmax(power))])
 
 
+def effect_reaches(description: RobotDescription) -> list[np.ndarray | None]:
+    """Per motor ``j``, the reach of a torque at model joint ``j``: row ``j`` of the coupling.
+
+    Scaled so the weight on motor ``j`` is 1; None where that torque lands on motor ``j`` alone
+    (or the coupling has no row ``j`` with a weight on it).
+    """
+    coupling = description.coupling
+    out: list[np.ndarray | None] = []
+    for j in range(description.n_joints):
+        if j >= coupling.shape[0] or coupling[j, j] == 0.0:
+            out.append(None)
+            continue
+        row = coupling[j] / coupling[j, j]
+        out.append(row.copy() if np.count_nonzero(row) > 1 else None)
+    return out
+
+
 def trace_residual(
     recordings: Sequence[Recording],
     description: RobotDescription,
@@ -489,19 +763,32 @@ def trace_residual(
                 options.ridge,
             )
         )
+    placement = options.effect_placement
+    if placement == "auto":
+        placement = "either" if options.friction == ModelCoordinateFriction.kind else "motor"
+    reaches = effect_reaches(description) if placement != "motor" else [None] * n
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()
     accepted: list[TracedEffect] = []
     history: list[dict[str, Any]] = []
     rejected: list[dict[str, Any]] = []
     plots: list[dict[str, Any]] = []
+    check = _joint_check(data, friction_l, offsets, None, options, data.folds)
+    veto = (
+        None
+        if data.phase_folds is None
+        else _joint_check(data, friction_l, offsets, None, options, data.phase_folds)
+    )
+    refuted: set[tuple[int, BasisSpec]] = set()
     for _ in range(options.max_effects):
-        best: tuple[float, int, BasisSpec, np.ndarray, np.ndarray, float] | None = None
+        passing: list[tuple[float, int, BasisSpec, np.ndarray, np.ndarray, float]] = []
         for j, design in enumerate(designs):
             base_errors = design.held_out_errors()
             theta = np.linalg.lstsq(design.base, design.y, rcond=None)[0]
             residual = design.y - design.base @ theta
             for spec in _candidates(data, j, n, residual, options, offsets, covered[j]):
+                if (j, spec) in refuted:
+                    continue
                 cols = _filtered_columns(data, spec)
                 if not np.all(np.isfinite(cols)):
                     continue
@@ -519,17 +806,49 @@ def trace_residual(
                             }
                         )
                         continue
-                    score = gain
-                    if best is None or score > best[0]:
-                        best = (score, j, spec, cols, errors, control_gain)
+                    passing.append((gain, j, spec, cols, errors, control_gain))
+        best = None
+        passing.sort(key=lambda entry: -entry[0])
+        whole_before = check.relative_rms()
+        for entry in passing[: options.confirm_candidates]:
+            _, j, spec, cols, _, _ = entry
+            checked = _confirm(
+                check, veto, whole_before, cols, j, reaches[j], placement == "either", options
+            )
+            if checked["confirmed"]:
+                best = entry
+                reach = checked["reach"]
+                break
+            refuted.add((j, spec))
+            rejected.append(
+                {
+                    "effect": spec.describe(),
+                    "gain": float(entry[0]),
+                    "whole_model_gain": checked["gain"],
+                    "whole_model_worse_joints": checked["worse_joints"],
+                    "whole_model_before": whole_before.tolist(),
+                    "whole_model_after": checked["after"],
+                }
+            )
         if best is None:
             break
         gain, j, spec, cols, errors, control_gain = best
+        check.add(_placed(cols, j, reach, n))
+        if veto is not None:
+            veto.add(_placed(cols, j, reach, n))
         design = designs[j]
         base_errors = design.held_out_errors()
         explained = 1.0 - errors.sum() / max(base_errors.sum(), 1e-300)
         after_j = design.relative_rms(errors)
-        accepted.append(TracedEffect(spec, float(explained), float(current[j]), after_j))
+        accepted.append(
+            TracedEffect(
+                spec,
+                float(explained),
+                float(current[j]),
+                after_j,
+                None if reach is None else tuple(float(w) for w in reach),
+            )
+        )
         history.append(
             {
                 "effect": spec.describe(),
@@ -539,10 +858,15 @@ def trace_residual(
             }
         )
         plots.append(_plot_data(data, design, spec, cols))
-        design.add(cols)
-        control = controls[j]
-        if control is not None:
-            control.add(cols)
+        # The effect's share on the other joints it reaches is part of their models from now
+        # on (free columns of each joint's design, as every column there is).
+        for k in range(n) if reach is not None else (j,):
+            if reach is not None and reach[k] == 0.0:
+                continue
+            designs[k].add(cols)
+            control = controls[k]
+            if control is not None:
+                control.add(cols)
         current[j] = after_j
     model = _final_model(
         prepared,
@@ -693,11 +1017,15 @@ def _final_model(
             a[:, :, col : col + n] = np.eye(n)
             col += n
         load = np.einsum("kjp,p->kj", s.rigid_regressor, load_values)
-        for spec in specs:
+        for spec, traced in zip(specs, accepted, strict=True):
             phi = lowpass_batch(
                 spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load), s.t_s, config.cutoff_hz
-            )
-            a[:, spec.joint, col : col + spec.size] = phi[v]
+            )[v]
+            if traced.reach is None:
+                a[:, spec.joint, col : col + spec.size] = phi
+            else:
+                reach = np.asarray(traced.reach)
+                a[:, :, col : col + spec.size] = phi[:, None, :] * reach[None, :, None]
             col += spec.size
         blocks.append(a)
         torques.append(s.tau_lowpassed_nm[v])
@@ -717,7 +1045,14 @@ def _final_model(
         col += n
     effects = []
     for spec, traced in zip(specs, accepted, strict=True):
-        effects.append(FoundEffect(spec, theta[col : col + spec.size], traced.explained))
+        effects.append(
+            FoundEffect(
+                spec,
+                theta[col : col + spec.size],
+                traced.explained,
+                None if traced.reach is None else np.asarray(traced.reach),
+            )
+        )
         col += spec.size
     return DynamicModel(
         robot=description.name,

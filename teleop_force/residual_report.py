@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from teleop_force.effects import describe_reach
 from teleop_force.residual import ResidualReport
 
 
@@ -52,13 +53,15 @@ def write_residual_report(
         lines.append("None: nothing lowered the held-out error significantly.")
     else:
         lines += [
-            "| # | joint | depends on | kind | explained | joint RMS before | after |",
-            "|---|---|---|---|---|---|---|",
+            "| # | joint | acts on (motor torque per unit) | depends on | kind | explained"
+            " | joint RMS before | after |",
+            "|---|---|---|---|---|---|---|---|",
         ]
     for k, effect in enumerate(report.effects):
         e = effect.to_json()
+        acts = describe_reach(e["joint"], e.get("reach"))
         lines.append(
-            f"| {k + 1} | {e['joint']} | {', '.join(e['depends_on'])} | {e['kind']}"
+            f"| {k + 1} | {e['joint']} | {acts} | {', '.join(e['depends_on'])} | {e['kind']}"
             f" | {e['explained']:.1%} | {e['joint_rms_before']:.2%} | {e['joint_rms_after']:.2%} |"
         )
     for k, item in enumerate(report.plots.get("effects", [])):

@@ -325,3 +325,39 @@ def test_every_number_of_a_model_file_replaced_by_a_bad_one(tmp_path, seed):
             with contextlib.suppress(TeleopForceError):
                 _run(model)
     assert outcomes["refused"] > 0 and outcomes["accepted"] > 0, outcomes
+
+
+def _with_effect(reach) -> Callable[[dict], None]:
+    def change(data: dict) -> None:
+        entry = {
+            "kind": "basis",
+            "spec": {"joint": 2, "variable": "q3", "shape": "linear"},
+            "coefficients": [0.01],
+        }
+        if reach is not None:
+            entry["reach"] = reach
+        data["effects"] = [entry]
+
+    return change
+
+
+def test_an_effect_at_a_model_joint_loads_round_trips_and_runs(tmp_path):
+    data = _changed("cv", _with_effect([0.0, -1.0, 1.0]))
+    model = DynamicModel.load(_write(tmp_path, data))
+    np.testing.assert_array_equal(model.effects[0].reach, [0.0, -1.0, 1.0])
+    assert model.to_dict()["effects"][0]["reach"] == [0.0, -1.0, 1.0]
+    q = np.full((1, 3), 0.5)
+    np.testing.assert_allclose(model.effects_torque(np.zeros(1), q, q, q), [[0.0, -0.005, 0.005]])
+    _run(model)
+
+
+@pytest.mark.parametrize(
+    ("reach", "field"),
+    [
+        ([0.0, -1.0, 1.0, 0.5], "effects[0].reach"),
+        ([1.0, 2.0], "effects[0]"),
+        ([0.0, math.nan, 1.0], "effects[0]"),
+    ],
+)
+def test_a_bad_effect_reach_is_refused_naming_it(tmp_path, reach, field):
+    _refused(tmp_path, _changed("cv", _with_effect(reach)), field)

@@ -248,3 +248,29 @@ def test_replaced_friction_objects_are_picked_up() -> None:
     second = estimator.update(1e-3, fast * 0.01, np.zeros(3))
     np.testing.assert_array_equal(second.coverage_weight, np.ones(3))
     assert dataclasses.is_dataclass(second)
+
+
+def test_streaming_estimate_spreads_effects_at_model_joints_like_batch() -> None:
+    """An effect with a reach (a torque at a model joint, through the coupling) lands on every
+    joint it reaches, in the compiled stream as in the batch prediction."""
+    description = omni_description()
+    spec = BasisSpec(2, "q3", "smooth", "both", -0.5, 1.0, 4)
+    reach = np.array([0.0, -1.0, 1.0])
+    effect = FoundEffect(
+        spec, np.array([0.01, -0.02, 0.015, 0.005, 0.002, -0.001, 0.0, 0.003]), 0, reach
+    )
+    without = _model(CoulombViscous(3, CV_PARAMETERS[[0, 1, 2, 3, 6, 7]]))
+    model = dataclasses.replace(without, effects=(effect,))
+    t, q, tau = _motion()
+    signals = filter_signals(
+        t, q, tau, RigidBodyRegressor(description), model.base, model.filter_config
+    )
+    batch = model.predict_filtered_torque(signals, tau)
+    spread = batch - without.predict_filtered_torque(signals, tau)
+    np.testing.assert_allclose(spread[:, 1], -spread[:, 2], atol=1e-15)
+    assert np.abs(spread[:, 2]).max() > 1e-3 and np.all(spread[:, 0] == 0.0)
+    estimator = ForceEstimator(model)
+    streamed = np.array(
+        [estimator.update(t[k], q[k], tau[k]).tau_model_filtered_nm for k in range(t.size)]
+    )
+    np.testing.assert_allclose(streamed, batch, rtol=0, atol=1e-9)

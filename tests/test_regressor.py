@@ -222,3 +222,61 @@ def test_non_square_coupling_is_checked() -> None:
         replace(description, coupling=description.coupling.T)
     with pytest.raises(ModelError, match="coupling must be 3x3"):
         replace(description, model=None, coupling=description.coupling)
+
+
+def test_representative_with_masses_keeps_base_values_and_pinocchio_finite() -> None:
+    """The MTM with an elbow mass driven negative: the plain representative breaks
+    pinocchio's composite inertias (negative subtree mass, clamped to epsilon); the
+    representative with masses keeps the base parameters and M(q) finite and right."""
+    import pinocchio as pin
+
+    from teleop_force.dvrk_mtm import dvrk_mtm_description
+
+    description = dvrk_mtm_description()
+    regressor = RigidBodyRegressor(description)
+    base = regressor.find_base_parameters()
+    nominal = full_parameters(description, np.zeros(0))
+    masses = range(0, 10 * description.n_links, 10)
+    values = base.project(nominal)
+    elbow = list(base.independent).index(20)  # link 3's mass is a base parameter
+    values[elbow] -= 1.5  # the elbow link's mass, as identified, becomes -0.9 kg
+    plain = base.representative(values, nominal)
+    assert plain[20] < 0
+    full = base.representative_with_masses(values, nominal, masses)
+    assert np.all(full[list(masses)] >= 1e-2 * (1 - 1e-6))
+    np.testing.assert_allclose(base.project(full), values, atol=1e-9)
+    rng = np.random.default_rng(3)
+    q_motor = rng.uniform(-0.5, 0.5, description.n_joints)
+    q = description.coupling @ q_motor
+    n_links = 10 * description.n_links
+    for candidate, finite in ((plain, False), (full, True)):
+        robot = Robot(description.with_link_parameters(candidate[:n_links]))
+        mass = pin.crba(robot.model, robot.model.createData(), q)
+        assert bool(np.all(np.abs(mass) < 1e6)) is finite
+    # M(q) through the coupling equals the base-parameter momentum regressor's
+    robot = Robot(
+        description.with_link_parameters(full[:n_links]).with_rotor_inertia(
+            full[n_links : n_links + description.n_joints]
+        )
+    )
+    mass = pin.crba(robot.model, robot.model.createData(), q)
+    mass = np.triu(mass) + np.triu(mass, 1).T
+    motor_mass = description.coupling.T @ mass @ description.coupling
+    for j in range(description.n_joints):
+        unit = np.eye(description.n_joints)[j]
+        column = regressor.momentum(q_motor, unit)[:, base.independent] @ values
+        rotor = full[n_links + j] * unit
+        np.testing.assert_allclose(motor_mass @ unit + rotor, column, atol=1e-9)
+
+
+def test_representative_with_masses_names_what_cannot_be_made_physical() -> None:
+    from teleop_force.errors import ModelError
+    from teleop_force.regressor import BaseParameters
+
+    alone = BaseParameters(("m_1", "mx_1"), np.array([0]), np.array([1]), np.zeros((1, 1)))
+    with pytest.raises(ModelError, match="m_1"):
+        alone.representative_with_masses(np.array([-1.0]), np.array([1.0, 0.0]), [0])
+    grouped = BaseParameters(("m_1", "mx_1"), np.array([0]), np.array([1]), np.ones((1, 1)))
+    full = grouped.representative_with_masses(np.array([-1.0]), np.array([1.0, 0.0]), [0])
+    assert full[0] >= 1e-2 * (1 - 1e-6)
+    assert grouped.project(full)[0] == pytest.approx(-1.0)

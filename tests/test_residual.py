@@ -215,10 +215,14 @@ def test_reversal_basis_is_bounded_odd_and_resets_at_reversals(velocities, dt_s)
             np.testing.assert_allclose(phi[b, half:], 1.0)
 
 
-def _coupled_cable(spring: bool, seed: int = 0) -> tuple[Recording, object]:
+def _coupled_cable(
+    spring: bool, seed: int = 0, at_model_joint: bool = False
+) -> tuple[Recording, object]:
     """Two joints whose friction acts on model axes ``w = T qd`` (a cable over joint 1's pulley).
 
-    Torque ``T^T f(T qd)`` plus offsets, and (``spring``) an angle-dependent torque on joint 2.
+    Torque ``T^T f(T qd)`` plus offsets, and (``spring``) an angle-dependent torque on joint 2:
+    on motor 2 alone, or (``at_model_joint``) at model joint 2, reaching motor 1 through the
+    coupling (``T^T e_2 = (0.7, 1)``).
     """
     from dataclasses import replace
 
@@ -241,7 +245,8 @@ def _coupled_cable(spring: bool, seed: int = 0) -> tuple[Recording, object]:
     f = np.array([0.02, 0.03]) * np.tanh(w / 0.01) + np.array([0.004, 0.006]) * w
     tau = f @ coupling + np.array([0.01, -0.005])
     if spring:
-        tau[:, 1] += 0.03 * np.sin(1.5 * q[:, 1] + 0.3)
+        torque = 0.03 * np.sin(1.5 * q[:, 1] + 0.3)
+        tau += torque[:, None] * (coupling[1] if at_model_joint else np.array([0.0, 1.0]))
     tau += rng.normal(0.0, 0.001, tau.shape)
     return Recording(t, q, tau), description
 
@@ -257,6 +262,8 @@ def test_model_coordinate_friction_residual_traces_the_spring(tmp_path: Path) ->
     assert report.effects, "the spring on joint 2 was not found"
     first = report.effects[0]
     assert first.spec.joint == 1 and "q2" in first.spec.depends_on(), first.spec.describe()
+    # at model joint 2 it would load joint 1 too: the whole model refutes that placement
+    assert first.reach is None
     assert report.after[1] < 0.5 * report.before[1], (report.before, report.after)
     assert isinstance(report.model.friction, ModelCoordinateFriction)
     held_out, _ = _coupled_cable(spring=True, seed=1)
@@ -266,6 +273,132 @@ def test_model_coordinate_friction_residual_traces_the_spring(tmp_path: Path) ->
     report.model.save(path)
     again = evaluate_model(DynamicModel.load(path), [held_out])["relative_rms"]
     np.testing.assert_allclose(again, error, rtol=1e-9)
+
+
+@pytest.mark.parametrize("placement", ["auto", "either", "model"])
+def test_an_effect_at_a_model_joint_is_placed_there(placement: str) -> None:
+    """The spring acts at model joint 2 (motor 1 sees 0.7 of it): found on joint 2, placed at
+    model joint 2, and the model transfers to another recording."""
+    from teleop_force.model_fitting import evaluate_model
+
+    recording, description = _coupled_cable(spring=True, at_model_joint=True)
+    options = ResidualOptions(friction="model-cv", offsets=True, effect_placement=placement)
+    report = trace_residual([recording], description, options)
+    assert report.effects, "the spring was not found"
+    first = report.effects[0]
+    assert first.spec.joint == 1 and "q2" in first.spec.depends_on(), first.spec.describe()
+    np.testing.assert_allclose(first.reach, [0.7, 1.0])
+    assert report.to_json()["effects"][0]["reach"] == [0.7, 1.0]
+    saved = report.model.effects[0]
+    np.testing.assert_allclose(saved.reach, [0.7, 1.0])
+    held_out, _ = _coupled_cable(spring=True, seed=1, at_model_joint=True)
+    error = evaluate_model(report.model, [held_out])["relative_rms"]
+    assert np.all(error < 0.1), error
+
+
+def test_effects_on_the_motor_joint_miss_the_coupled_share() -> None:
+    """With placement ``motor`` the same spring is found on joint 2 alone."""
+    recording, description = _coupled_cable(spring=True, at_model_joint=True)
+    options = ResidualOptions(friction="model-cv", offsets=True, effect_placement="motor")
+    report = trace_residual([recording], description, options)
+    assert report.effects and all(e.reach is None for e in report.effects)
+    assert "reach" not in report.to_json()["effects"][0]
+
+
+def test_unknown_effect_placement_is_refused() -> None:
+    with pytest.raises(ValueError, match="effect placement"):
+        ResidualOptions(effect_placement="elbow")
+
+
+def test_effect_reaches_are_the_rows_of_the_coupling() -> None:
+    from teleop_force.dvrk_mtm import CABLE_RATIO, dvrk_mtm_description
+    from teleop_force.residual import effect_reaches
+
+    reaches = effect_reaches(dvrk_mtm_description())
+    assert [r is None for r in reaches] == [True, True, False, False, True, True, True]
+    np.testing.assert_allclose(reaches[2], [0, -1, 1, 0, 0, 0, 0])
+    np.testing.assert_allclose(reaches[3], [0, CABLE_RATIO, -CABLE_RATIO, 1, 0, 0, 0])
+    assert effect_reaches(resolve_robot("none", 2)) == [None, None]
+
+
+def test_found_effect_reach_spreads_its_torque_and_round_trips() -> None:
+    from teleop_force.errors import ModelError
+
+    spec = BasisSpec(1, "q2", "linear")
+    effect = FoundEffect(spec, np.array([2.0]), 0.5, np.array([0.7, 1.0]))
+    q = np.array([[0.0, 0.5], [0.0, -1.0]])
+    np.testing.assert_allclose(effect.torque(np.zeros(2), q, q, q), [[0.7, 1.0], [-1.4, -2.0]])
+    again = effect_from_dict(effect.to_dict())
+    np.testing.assert_array_equal(again.reach, [0.7, 1.0])
+    assert effect_from_dict(FoundEffect(spec, np.array([2.0])).to_dict()).reach is None
+    with pytest.raises(ModelError, match="reach"):
+        FoundEffect(spec, np.array([2.0]), 0.0, np.array([1.0]))
+    with pytest.raises(ModelError, match="reaches 2 joints, not 3"):
+        effect.torque(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+def test_trajectory_period_of_repeated_and_unrepeated_motion() -> None:
+    from teleop_force.residual import trajectory_period
+
+    t = np.arange(0.0, 20.0, 0.005)
+    q = np.column_stack((np.sin(2 * np.pi * t / 3.0), 0.2 * np.cos(4 * np.pi * t / 3.0)))
+    assert trajectory_period(t, q) == pytest.approx(3.0, abs=0.005)
+    rng = np.random.default_rng(0)
+    assert trajectory_period(t, np.cumsum(rng.normal(size=(t.size, 2)), axis=0)) is None
+    assert trajectory_period(t, np.zeros((t.size, 2))) is None  # nothing moves
+    assert trajectory_period(t[:5], q[:5]) is None
+    swept, _ = _coupled_cable(spring=False)  # two incommensurate sines over 40 s
+    assert trajectory_period(swept.t_s, swept.q_rad) is None
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    period=st.floats(1.5, 4.0),
+    amplitudes=st.lists(st.floats(0.05, 1.0), min_size=3, max_size=3),
+    phases=st.lists(st.floats(0.0, 6.3), min_size=3, max_size=3),
+)
+def test_trajectory_period_finds_the_period_of_a_fourier_trajectory(
+    period: float, amplitudes: list[float], phases: list[float]
+) -> None:
+    """A Fourier trajectory (harmonics 1-3 of the base frequency) repeats every period."""
+    from teleop_force.residual import trajectory_period
+
+    t = np.arange(0.0, 2.5 * period, 0.01)
+    q = sum(
+        a * np.sin(2 * np.pi * (k + 1) * t / period + p)
+        for k, (a, p) in enumerate(zip(amplitudes, phases, strict=True))
+    )
+    found = trajectory_period(t, np.column_stack((q, np.cos(2 * np.pi * t / period))))
+    assert found is not None and abs(found - period) <= 0.01
+
+
+def test_periodic_recordings_also_get_phase_folds() -> None:
+    from teleop_force.filtered_regressor import FilterConfig
+    from teleop_force.model_fitting import prepare
+    from teleop_force.residual import _select_rows
+
+    t = np.arange(0.0, 30.0, 0.005)
+    q = np.column_stack((np.sin(2 * np.pi * t / 7.0), np.cos(4 * np.pi * t / 7.0)))
+    periodic = Recording(t, q, np.zeros_like(q))
+    description = resolve_robot("none", 2)
+    options = ResidualOptions()
+    prepared, _ = prepare([periodic], description, FilterConfig())
+    data = _select_rows(prepared, options, np.zeros(0))
+    assert data.phase_folds is not None
+    # a fold held out by phase is the same stretch of every period: the fold is a function
+    # of the phase alone (up to the period's one-sample resolution at block edges)
+    kept_t = t[data.rows[0]]
+    n_blocks = options.folds * options.blocks_per_fold
+    phase = np.mod(kept_t - kept_t[0], 7.0) / 7.0
+    expected = (np.floor(phase * n_blocks).astype(int)) % options.folds
+    assert np.mean(data.phase_folds == expected) > 0.97
+    assert np.mean(data.folds == expected) < 0.5  # time blocks are not that
+    assert (
+        _select_rows(prepared, ResidualOptions(phase_folds=False), np.zeros(0)).phase_folds is None
+    )
+    swept, _ = _coupled_cable(spring=False)
+    prepared, _ = prepare([swept], description, FilterConfig())
+    assert _select_rows(prepared, options, np.zeros(0)).phase_folds is None
 
 
 def test_model_coordinate_friction_residual_adds_nothing_without_the_spring() -> None:
