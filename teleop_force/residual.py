@@ -259,6 +259,7 @@ class _JointCheck:
         self.folds = folds
         self.n_folds = n_folds
         self.ridge = ridge
+        self._yy = np.clip(np.sum(y**2, axis=0), 1e-300, None)
         self._base: np.ndarray | None = None
 
     def add(self, extra: np.ndarray) -> None:
@@ -286,7 +287,7 @@ class _JointCheck:
                 theta = np.linalg.lstsq(scaled, cross, rcond=None)[0]
             error = self.y[held] - a[held] @ (theta / scale)
             squared += np.sum(error**2, axis=0)
-        out = np.sqrt(squared / np.clip(np.sum(self.y**2, axis=0), 1e-300, None))
+        out = np.sqrt(squared / self._yy)
         if extra is None:
             self._base = out
         return out
@@ -333,12 +334,12 @@ def _confirm(
     if reach is not None:
         placements = (reach, None) if alone_too else (reach,)
     for placement in placements:
-        after = check.relative_rms(_placed(cols, joint, placement, len(before)))
+        placed = _placed(cols, joint, placement, len(before))
+        after = check.relative_rms(placed)
         gain = 1.0 - after[joint] / max(before[joint], 1e-300)
         worse = _worse(before, after, options.min_rms_gain)
         if veto is not None:
-            phase_after = veto.relative_rms(_placed(cols, joint, placement, len(before)))
-            worse |= _worse(veto.relative_rms(), phase_after, options.min_rms_gain)
+            worse |= _worse(veto.relative_rms(), veto.relative_rms(placed), options.min_rms_gain)
         result = {
             "confirmed": bool(gain >= options.min_rms_gain and not worse.any()),
             "reach": placement,
@@ -352,40 +353,24 @@ def _confirm(
 
 
 def _joint_check(
-    data: _Data,
-    friction_l: np.ndarray,
-    offsets: bool,
-    network: FrictionModel | None,
-    options: ResidualOptions,
-    folds: np.ndarray,
+    data: _Data, friction_l: np.ndarray, offsets: bool, options: ResidualOptions, folds: np.ndarray
 ) -> _JointCheck:
-    """Return the whole model's design at the selected rows: rigid body, friction, offsets."""
+    """Return the whole model's design at the selected rows: rigid body, friction, offsets.
+
+    The friction is the stage-one model's (a wavelet network's coupled CV fallback): a
+    velocity map does not extrapolate to blocks held out by phase.
+    """
     n = friction_l.shape[1]
-    rigid, network_cols, ys = [], [], []
-    for item, idx in zip(data.prepared, data.rows, strict=True):
-        s = item.signals
-        rigid.append(s.rigid_regressor[idx])
-        ys.append(s.tau_lowpassed_nm[idx])
-        if network is not None:
-            blocks = [
-                lowpass_batch(network.basis(j, s.qd_rad_s), s.t_s, s.config.cutoff_hz)[idx]
-                for j in range(n)
-            ]
-            placed = np.zeros((idx.size, n, sum(b.shape[1] for b in blocks)))
-            col = 0
-            for j, b in enumerate(blocks):
-                placed[:, j, col : col + b.shape[1]] = b
-                col += b.shape[1]
-            network_cols.append(placed)
-    friction = friction_l[:, :, np.any(friction_l != 0.0, axis=(0, 1))]
-    parts = [np.concatenate(rigid), friction]
-    if network_cols:
-        parts.append(np.concatenate(network_cols))
-    if offsets:
-        parts.append(np.broadcast_to(np.eye(n), (friction.shape[0], n, n)))
-    return _JointCheck(
-        np.concatenate(parts, axis=2), np.concatenate(ys), folds, options.folds, options.ridge
+    rigid = np.concatenate(
+        [p.signals.rigid_regressor[idx] for p, idx in zip(data.prepared, data.rows, strict=True)]
     )
+    y = np.concatenate(
+        [p.signals.tau_lowpassed_nm[idx] for p, idx in zip(data.prepared, data.rows, strict=True)]
+    )
+    parts = [rigid, friction_l[:, :, np.any(friction_l != 0.0, axis=(0, 1))]]
+    if offsets:
+        parts.append(np.broadcast_to(np.eye(n), (rigid.shape[0], n, n)))
+    return _JointCheck(np.concatenate(parts, axis=2), y, folds, options.folds, options.ridge)
 
 
 @dataclass(frozen=True, eq=False)
@@ -712,7 +697,7 @@ def effect_reaches(description: RobotDescription) -> list[np.ndarray | None]:
             out.append(None)
             continue
         row = coupling[j] / coupling[j, j]
-        out.append(row.copy() if np.count_nonzero(row) > 1 else None)
+        out.append(row if np.count_nonzero(row) > 1 else None)
     return out
 
 
@@ -773,11 +758,11 @@ def trace_residual(
     history: list[dict[str, Any]] = []
     rejected: list[dict[str, Any]] = []
     plots: list[dict[str, Any]] = []
-    check = _joint_check(data, friction_l, offsets, None, options, data.folds)
+    check = _joint_check(data, friction_l, offsets, options, data.folds)
     veto = (
         None
         if data.phase_folds is None
-        else _joint_check(data, friction_l, offsets, None, options, data.phase_folds)
+        else _joint_check(data, friction_l, offsets, options, data.phase_folds)
     )
     refuted: set[tuple[int, BasisSpec]] = set()
     for _ in range(options.max_effects):
@@ -833,9 +818,10 @@ def trace_residual(
         if best is None:
             break
         gain, j, spec, cols, errors, control_gain = best
-        check.add(_placed(cols, j, reach, n))
+        placed = _placed(cols, j, reach, n)
+        check.add(placed)
         if veto is not None:
-            veto.add(_placed(cols, j, reach, n))
+            veto.add(placed)
         design = designs[j]
         base_errors = design.held_out_errors()
         explained = 1.0 - errors.sum() / max(base_errors.sum(), 1e-300)
@@ -860,9 +846,7 @@ def trace_residual(
         plots.append(_plot_data(data, design, spec, cols))
         # The effect's share on the other joints it reaches is part of their models from now
         # on (free columns of each joint's design, as every column there is).
-        for k in range(n) if reach is not None else (j,):
-            if reach is not None and reach[k] == 0.0:
-                continue
+        for k in (j,) if reach is None else np.flatnonzero(reach):
             designs[k].add(cols)
             control = controls[k]
             if control is not None:
@@ -873,7 +857,6 @@ def trace_residual(
         description,
         base,
         friction,
-        [e.spec for e in accepted],
         config,
         offsets,
         accepted,
@@ -991,7 +974,7 @@ def _plot_data(data: _Data, design: _Design, spec: BasisSpec, cols: np.ndarray) 
 
 
 def _final_model(
-    prepared, description, base, friction, specs, config, offsets, accepted, load_values
+    prepared, description, base, friction, config, offsets, accepted, load_values
 ) -> DynamicModel:
     """Refit rigid body, friction and all effects together on all data.
 
@@ -1002,6 +985,7 @@ def _final_model(
     counts = friction.parameter_counts()
     p_f = int(sum(counts))
     r = 0 if base is None else base.count
+    specs = [e.spec for e in accepted]
     effect_sizes = [s.size for s in specs]
     total = r + p_f + (n if offsets else 0) + int(sum(effect_sizes))
     blocks, torques = [], []
@@ -1021,11 +1005,8 @@ def _final_model(
             phi = lowpass_batch(
                 spec.basis(s.t_s, s.q_rad, s.qd_rad_s, load), s.t_s, config.cutoff_hz
             )[v]
-            if traced.reach is None:
-                a[:, spec.joint, col : col + spec.size] = phi
-            else:
-                reach = np.asarray(traced.reach)
-                a[:, :, col : col + spec.size] = phi[:, None, :] * reach[None, :, None]
+            reach = None if traced.reach is None else np.asarray(traced.reach)
+            a[:, :, col : col + spec.size] = _placed(phi, spec.joint, reach, n)
             col += spec.size
         blocks.append(a)
         torques.append(s.tau_lowpassed_nm[v])

@@ -109,3 +109,17 @@ def test_console_script_reports_without_traceback(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_residual_choices_are_the_libraries_own() -> None:
+    """The parser lists the choices as literals (it must not import the residual loop to
+    start); they must be the library's."""
+    from teleop_force.cli import build_parser
+    from teleop_force.residual import EFFECT_PLACEMENTS, RESIDUAL_FRICTION_KINDS
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.choices and "residual" in a.choices)
+    residual = sub.choices["residual"]
+    choices = {a.dest: tuple(a.choices) for a in residual._actions if a.choices}
+    assert choices["effect_placement"] == EFFECT_PLACEMENTS
+    assert set(choices["friction"]) == set(RESIDUAL_FRICTION_KINDS) - {"wn"}
