@@ -23,15 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop_force import model_fitting
-from teleop_force.bench_data import identification_recordings, palpation_arrays
-from teleop_force.dynamic_model import DynamicModel
-from teleop_force.estimation import ForceEstimator
-from teleop_force.filtered_regressor import FilterConfig, filter_signals
+from teleop_force.bench.data import identification_recordings, palpation_arrays
+from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.friction import wavelet_network
-from teleop_force.model_fitting import WaveletOptions, identify_model
-from teleop_force.omni import omni_description
-from teleop_force.regressor import RigidBodyRegressor
+from teleop_force.identification import pipeline as model_fitting
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
+from teleop_force.identification.pipeline import WaveletOptions, identify_model
+from teleop_force.identification.regressor import RigidBodyRegressor
+from teleop_force.robots.omni import omni_description
 
 BEFORE = "d99fc28"
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,8 +66,10 @@ def time_updates(estimator: object, rows: list, n: int) -> np.ndarray:
 def main() -> int:
     """Measure and print the before/after figures."""
     model = DynamicModel.load(sys.argv[1])
-    old_estimation = load_before("teleop_force/estimation.py", "before_estimation")
-    old_regressor = load_before("teleop_force/filtered_regressor.py", "before_filtered_regressor")
+    old_estimation = load_before("teleop_force/estimation/estimator.py", "before_estimation")
+    old_regressor = load_before(
+        "teleop_force/identification/filtered_regressor.py", "before_filtered_regressor"
+    )
     arrays = palpation_arrays(12.0)
     rows = [
         (float(t), np.array(q), np.array(tau))

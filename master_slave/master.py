@@ -1,6 +1,6 @@
 """The master Omni process: the operator's arm, whose pose the slave follows.
 
-The master is a :class:`~teleop_force.device.Device` (here a :class:`SimulatedOmni` without a
+The master is a :class:`~teleop_force.robots.device.Device` (here a :class:`SimulatedOmni` without a
 tissue; a real Omni driver would replace it). A simulated operator's hand holds its stylus and
 moves it along a script (:mod:`master_slave.operator`: palpation or random motion): the hand
 is a stiff PID impedance on the master's joints, whose torque the plant receives together
@@ -47,18 +47,19 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
-from teleop_force import keys, omni
-from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
-from teleop_force.process_memory import MemoryTrimmer
-from teleop_force.service_runtime import (
+from teleop_force.process.lifetime import (
     StopSignal,
     log,
     use_realtime_switch_interval,
     write_json,
 )
-from teleop_force.service_stats import LatencyHistogram, SequenceTracker
-from teleop_force.service_transport import (
+from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.robots import omni
+from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import (
     declare_data_publisher,
     declare_json_queryable,
     declare_liveliness_subscriber,
@@ -68,8 +69,8 @@ from teleop_force.service_transport import (
     undeclare_all,
     wait_for_subscribers,
 )
-from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
-from teleop_force.zenoh_session import ZenohOptions, open_session, options_from_args
+from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
+from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
 
 ROLE = "master"
 SEQ_MASK = 0xFFFF_FFFF

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from master_slave.realtime import LoopConfig
 from teleop_force.errors import ConfigurationError
-from teleop_force.zenoh_session import add_zenoh_arguments
+from teleop_force.transport.session import add_zenoh_arguments
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.service_stats import LatencyHistogram
+from teleop_force.transport.stream_stats import LatencyHistogram
 
 
 @dataclass(frozen=True)

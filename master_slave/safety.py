@@ -1,6 +1,6 @@
 """The slave's safety state machine: follow the master only while it is alive and fresh.
 
-States (:class:`~teleop_force.messages.SafetyState`)::
+States (:class:`~teleop_force.transport.messages.SafetyState`)::
 
     STARTING  --(token present, setpoints fresh, resume_count received)-->  FOLLOWING
     FOLLOWING --(token gone, or last setpoint older than stale_s)-------->  HOLDING
@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.messages import SafetyState
+from teleop_force.transport.messages import SafetyState
 
 
 @dataclass(frozen=True)

@@ -54,18 +54,18 @@ from master_slave.process_args import (
 )
 from master_slave.realtime import LoopConfig, RateLoop
 from master_slave.safety import SafetyConfig, SafetyMonitor
-from teleop_force import keys
-from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
-from teleop_force.process_memory import MemoryTrimmer
-from teleop_force.service_runtime import (
+from teleop_force.process.lifetime import (
     StopSignal,
     log,
     use_realtime_switch_interval,
     write_json,
 )
-from teleop_force.service_stats import LatencyHistogram, SequenceTracker
-from teleop_force.service_transport import (
+from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.simulation import PID, PIDGains, PlaneContact, PlantConfig, SimulatedOmni
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import (
     declare_data_publisher,
     declare_json_queryable,
     declare_liveliness_subscriber,
@@ -75,8 +75,8 @@ from teleop_force.service_transport import (
     undeclare_all,
     wait_for_subscribers,
 )
-from teleop_force.simulation import PID, PIDGains, PlaneContact, PlantConfig, SimulatedOmni
-from teleop_force.zenoh_session import ZenohOptions, open_session, options_from_args
+from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
+from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
 
 ROLE = "slave"
 STATUS_PERIOD_S = 0.1

@@ -2,7 +2,7 @@
 
 The front door: identify a model from recordings, estimate contact forces sample by sample,
 close the loop on what the model lacks. Zenoh keys and wire messages live in
-:mod:`teleop_force.keys` and :mod:`teleop_force.messages`; the simulated Omni in
+:mod:`teleop_force.transport.keys` and :mod:`teleop_force.transport.messages`; the simulated Omni in
 :mod:`teleop_force.simulation`.
 """
 
@@ -13,51 +13,49 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives; imported on first use so that processes start fast.
 _LOCATIONS = {
-    "BaseParameters": "teleop_force.regressor",
+    "BaseParameters": "teleop_force.identification.regressor",
     "ConfigurationError": "teleop_force.errors",
     "CoulombViscous": "teleop_force.friction",
     "CoupledCoulombViscous": "teleop_force.friction",
     "CoverageMap": "teleop_force.friction.coverage",
     "DataError": "teleop_force.errors",
-    "Device": "teleop_force.device",
-    "DynamicModel": "teleop_force.dynamic_model",
-    "FilterConfig": "teleop_force.filtered_regressor",
-    "ForceEstimate": "teleop_force.estimation",
-    "ForceEstimator": "teleop_force.estimation",
+    "Device": "teleop_force.robots.device",
+    "DynamicModel": "teleop_force.identification.dynamic_model",
+    "FilterConfig": "teleop_force.identification.filtered_regressor",
+    "ForceEstimate": "teleop_force.estimation.estimator",
+    "ForceEstimator": "teleop_force.estimation.estimator",
     "FrictionModel": "teleop_force.friction",
-    "Identification": "teleop_force.identification",
-    "LowPass": "teleop_force.lowpass",
+    "Identification": "teleop_force.identification.least_squares",
+    "LowPass": "teleop_force.identification.lowpass",
     "LyapunovAdapter": "teleop_force.friction.adaptation",
     "MessageError": "teleop_force.errors",
     "ModelError": "teleop_force.errors",
     "ModelFileError": "teleop_force.errors",
-    "Recording": "teleop_force.interchange_csv",
-    "ResidualReport": "teleop_force.residual",
-    "RigidBodyRegressor": "teleop_force.regressor",
-    "Robot": "teleop_force.robot",
-    "RobotDescription": "teleop_force.robot",
-    "SessionReader": "teleop_force.mcap_session",
-    "SessionWriter": "teleop_force.mcap_session",
+    "Recording": "teleop_force.io.interchange_csv",
+    "ResidualReport": "teleop_force.residual.loop",
+    "RigidBodyRegressor": "teleop_force.identification.regressor",
+    "Robot": "teleop_force.robots.description",
+    "RobotDescription": "teleop_force.robots.description",
+    "SessionReader": "teleop_force.io.mcap_session",
+    "SessionWriter": "teleop_force.io.mcap_session",
     "SingularityError": "teleop_force.errors",
     "TeleopForceError": "teleop_force.errors",
     "TransportError": "teleop_force.errors",
     "WaveletNetwork": "teleop_force.friction.wavelet_network",
-    "evaluate_model": "teleop_force.model_fitting",
+    "evaluate_model": "teleop_force.identification.pipeline",
     "fit_batch": "teleop_force.friction.adaptation",
-    "identify_model": "teleop_force.model_fitting",
-    "least_squares": "teleop_force.identification",
-    "omni_description": "teleop_force.omni",
-    "read_interchange_csv": "teleop_force.interchange_csv",
-    "read_recording": "teleop_force.recordings",
-    "relative_rms": "teleop_force.identification",
-    "resolve_robot": "teleop_force.robots",
-    "trace_residual": "teleop_force.residual",
-    "write_interchange_csv": "teleop_force.interchange_csv",
+    "identify_model": "teleop_force.identification.pipeline",
+    "least_squares": "teleop_force.identification.least_squares",
+    "omni_description": "teleop_force.robots.omni",
+    "read_interchange_csv": "teleop_force.io.interchange_csv",
+    "read_recording": "teleop_force.io.recordings",
+    "relative_rms": "teleop_force.identification.least_squares",
+    "resolve_robot": "teleop_force.robots.registry",
+    "trace_residual": "teleop_force.residual.loop",
+    "write_interchange_csv": "teleop_force.io.interchange_csv",
 }
 
 if TYPE_CHECKING:
-    from teleop_force.device import Device
-    from teleop_force.dynamic_model import DynamicModel
     from teleop_force.errors import (
         ConfigurationError,
         DataError,
@@ -68,23 +66,33 @@ if TYPE_CHECKING:
         TeleopForceError,
         TransportError,
     )
-    from teleop_force.estimation import ForceEstimate, ForceEstimator
-    from teleop_force.filtered_regressor import FilterConfig
+    from teleop_force.estimation.estimator import ForceEstimate, ForceEstimator
     from teleop_force.friction import CoulombViscous, CoupledCoulombViscous, FrictionModel
     from teleop_force.friction.adaptation import LyapunovAdapter, fit_batch
     from teleop_force.friction.coverage import CoverageMap
     from teleop_force.friction.wavelet_network import WaveletNetwork
-    from teleop_force.identification import Identification, least_squares, relative_rms
-    from teleop_force.interchange_csv import Recording, read_interchange_csv, write_interchange_csv
-    from teleop_force.lowpass import LowPass
-    from teleop_force.mcap_session import SessionReader, SessionWriter
-    from teleop_force.model_fitting import evaluate_model, identify_model
-    from teleop_force.omni import omni_description
-    from teleop_force.recordings import read_recording
-    from teleop_force.regressor import BaseParameters, RigidBodyRegressor
-    from teleop_force.residual import ResidualReport, trace_residual
-    from teleop_force.robot import Robot, RobotDescription
-    from teleop_force.robots import resolve_robot
+    from teleop_force.identification.dynamic_model import DynamicModel
+    from teleop_force.identification.filtered_regressor import FilterConfig
+    from teleop_force.identification.least_squares import (
+        Identification,
+        least_squares,
+        relative_rms,
+    )
+    from teleop_force.identification.lowpass import LowPass
+    from teleop_force.identification.pipeline import evaluate_model, identify_model
+    from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
+    from teleop_force.io.interchange_csv import (
+        Recording,
+        read_interchange_csv,
+        write_interchange_csv,
+    )
+    from teleop_force.io.mcap_session import SessionReader, SessionWriter
+    from teleop_force.io.recordings import read_recording
+    from teleop_force.residual.loop import ResidualReport, trace_residual
+    from teleop_force.robots.description import Robot, RobotDescription
+    from teleop_force.robots.device import Device
+    from teleop_force.robots.omni import omni_description
+    from teleop_force.robots.registry import resolve_robot
 
 __all__ = [
     "BaseParameters",

@@ -1,4 +1,4 @@
-"""Requests from the dashboard to the force-estimation service (``teleop_force/service.py``).
+"""Requests from the dashboard to the force-estimation service (:mod:`teleop_force.service`).
 
 Keys and payloads (``<d>`` is the slave's device id):
 
@@ -41,11 +41,11 @@ from typing import IO, Any, Final
 
 import zenoh
 
-from teleop_force import keys
 from teleop_force.errors import ConfigurationError
-from teleop_force.zenoh_session import ZenohOptions
+from teleop_force.transport import keys
+from teleop_force.transport.session import ZenohOptions
 
-#: Last chunks of the control key (not in :mod:`teleop_force.keys` yet).
+#: Last chunks of the control key (not in :mod:`teleop_force.transport.keys` yet).
 SERVICE_CONTROL: Final = "service/control"
 QUERY_TIMEOUT_S: Final = 2.0
 MIN_SPEED: Final = 0.05
@@ -198,7 +198,7 @@ class ServiceClient:
 
 
 def zenoh_cli_args(options: ZenohOptions) -> list[str]:
-    """Return flags of :func:`~teleop_force.zenoh_session.add_zenoh_arguments` for ``options``.
+    """Return flags of :func:`~teleop_force.transport.session.add_zenoh_arguments` for ``options``.
 
     Listening endpoints are not passed on (a child listens on a free loopback port).
     """
@@ -222,7 +222,7 @@ def teleop_force_command() -> list[str]:
     found = shutil.which("teleop-force")
     if found:
         return [found]
-    return [sys.executable, "-m", "teleop_force.cli"]
+    return [sys.executable, "-m", "teleop_force.cli.main"]
 
 
 def replay_command(

@@ -1,6 +1,7 @@
 """Where the friction network was trained, read from the model JSON the service returns.
 
-The model JSON is :meth:`teleop_force.dynamic_model.DynamicModel.to_dict`; its ``friction``
+The model JSON is :meth:`teleop_force.identification.dynamic_model.DynamicModel.to_dict`; its
+``friction``
 entry, for a wavelet network (``kind == "wn"``), holds per joint the input set, the velocity
 region ``X_r``, the active wavelets ``[m, n...]`` (centre ``a0^m n b0``) and a ``coverage``
 map (occupancy counts per grid cell, see :mod:`teleop_force.friction.coverage`).

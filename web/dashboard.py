@@ -1,7 +1,8 @@
 """The teleop-force browser dashboard (viser): ``python -m web --device slave --port 8080``.
 
 A Zenoh client of the teleop system: it only subscribes to the keys of
-:mod:`teleop_force.keys` and queries the service (:mod:`web.control`), so it works against the
+:mod:`teleop_force.transport.keys` and queries the service (:mod:`web.control`), so it works
+against the
 real system, a replay, or synthetic messages.
 
 Threads: Zenoh's callbacks append into ring buffers (:mod:`web.telemetry`); one render thread
@@ -28,10 +29,10 @@ import numpy as np
 import viser
 import zenoh
 
-from teleop_force import keys
 from teleop_force.errors import TeleopForceError
-from teleop_force.process_memory import MemoryTrimmer
-from teleop_force.zenoh_session import (
+from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.transport import keys
+from teleop_force.transport.session import (
     ZenohOptions,
     add_zenoh_arguments,
     open_session,

@@ -15,7 +15,7 @@ from typing import Final
 
 import numpy as np
 
-from teleop_force.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M
+from teleop_force.robots.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M
 
 #: Rotation taking Omni base-frame vectors to viser world vectors.
 R_WORLD_BASE: Final = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -36,7 +36,7 @@ def omni_joint_points(
 
     ``q = (q1, q2, q3)`` in motor coordinates (q3 is the absolute forearm angle). The shoulder
     is the base-frame origin; the tip is the same point as
-    :func:`teleop_force.omni.tip_position_formula`.
+    :func:`teleop_force.robots.omni.tip_position_formula`.
     """
     q1, q2, q3 = (float(v) for v in np.asarray(q, dtype=float)[:3])
     s1, c1 = np.sin(q1), np.cos(q1)

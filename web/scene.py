@@ -13,7 +13,7 @@ from typing import Any, Final
 import numpy as np
 import viser
 
-from teleop_force.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M
+from teleop_force.robots.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M
 from web.geometry import (
     R_WORLD_BASE,
     arm_frame_quats,

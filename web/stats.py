@@ -1,6 +1,7 @@
 """Per-stream receive statistics computed locally: rate, latency, lost and malformed messages.
 
-Lost messages are counted from ``seq`` gaps (:func:`teleop_force.messages.sequence_gap`); a
+Lost messages are counted from ``seq`` gaps (:func:`teleop_force.transport.messages.sequence_gap`);
+a
 jump of more than :data:`RESTART_GAP` (or backwards) is taken as a publisher restart, not a
 loss. Latency is ``time.time_ns() - t_ns`` at arrival (meaningful on clock-synchronised
 machines). Rates and ages use ``time.perf_counter``.
@@ -14,7 +15,7 @@ from typing import Final
 
 import numpy as np
 
-from teleop_force.messages import sequence_gap
+from teleop_force.transport.messages import sequence_gap
 
 #: A seq jump larger than this is a restart of the publisher, not lost messages.
 RESTART_GAP: Final = 1_000_000

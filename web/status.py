@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Final
 
-from teleop_force.messages import SafetyState
+from teleop_force.transport.messages import SafetyState
 
 STALE_AFTER_S: Final = 0.25
 UNTRAINED_HOLD_S: Final = 0.5

@@ -20,8 +20,8 @@ from typing import Any, Final
 import numpy as np
 import zenoh
 
-from teleop_force import keys
-from teleop_force.messages import (
+from teleop_force.transport import keys
+from teleop_force.transport.messages import (
     ContactForce,
     ForceEstimate,
     JointSetpoint,

@@ -7,9 +7,8 @@ from typing import Any
 from teleop_force.errors import ModelError
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.kinds import FRICTION_KINDS, FrictionKind
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction
-
-FRICTION_KINDS = ("cv", "coupled-cv", "model-cv", "wn")
 
 
 def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
@@ -32,6 +31,7 @@ __all__ = [
     "FRICTION_KINDS",
     "CoulombViscous",
     "CoupledCoulombViscous",
+    "FrictionKind",
     "FrictionModel",
     "ModelCoordinateFriction",
     "friction_from_dict",

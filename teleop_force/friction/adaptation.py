@@ -54,7 +54,8 @@ Structure (Section III-D), checked every ``structure_interval`` samples, vectori
 * inclusion: when an active wavelet's ``|c|`` *becomes* greater than ``mu`` (it was
   ``<= mu`` at the previous check; new wavelets start at 0) its pool neighbours are activated
   (coefficient 0; filtered-basis state set to their *current raw value*, the convention of
-  :class:`teleop_force.lowpass.LowPass` for a filter's first sample). Reading "becomes" as
+  :class:`teleop_force.identification.lowpass.LowPass` for a filter's first sample). Reading
+  "becomes" as
   the crossing event, not the level, keeps a removed neighbour of a large wavelet out until
   some wavelet crosses ``mu`` again (with the level reading the pair ``theta > mu`` makes
   removed neighbours come back at once, an endless include/remove churn);
@@ -92,7 +93,7 @@ from teleop_force.errors import ConfigurationError, DataError, ModelError
 from teleop_force.friction.blas_threads import single_threaded_blas
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import WaveletNetwork, mexican_hat
-from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
+from teleop_force.identification.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
 
 #: An excluded wavelet's coefficient decays as ``exp(-t / tau)`` with
 #: ``tau = removal_time_s / REMOVAL_TIME_CONSTANTS``; after ``removal_time_s`` (e^-5, < 1 %
@@ -201,7 +202,7 @@ def _regularised_intervals(t_s: np.ndarray) -> np.ndarray:
 
     Time stamps like ``arange(N) / 1000`` differ from a uniform grid by rounding only; using
     one exact interval makes the per-block filter constants identical (and cacheable) and
-    matches :func:`teleop_force.lowpass.lowpass_batch`, which does the same.
+    matches :func:`teleop_force.identification.lowpass.lowpass_batch`, which does the same.
     """
     dt = sample_intervals(t_s)
     median = float(np.median(dt))
@@ -887,7 +888,8 @@ def fit_batch(
     ``row_stride`` > 1 builds the normal equations from every ``row_stride``-th row of the
     filtered basis (the basis is still evaluated and filtered on every sample); ``rms_nm`` and
     ``relative_rms`` are then over those rows. The identification pipeline uses
-    :func:`teleop_force.wavelet_training.batch_row_stride` (3 at 1 kHz and 8 Hz). Groups of
+    :func:`teleop_force.identification.wavelet_training.batch_row_stride` (3 at 1 kHz and 8 Hz).
+    Groups of
     joints with the same pool geometry are fitted in parallel threads, with OpenBLAS on one
     thread (:func:`~teleop_force.friction.blas_threads.single_threaded_blas`).
     """

@@ -7,7 +7,8 @@ of one joint network on *every* sample, runs the first-order low-pass filter
 ``y_k[t] = a_t y_k[t-1] + (1 - a_t) psi_k(x[t])`` on every sample, and returns the filtered
 rows asked for (every ``row_stride``-th), in one pass over the samples, without the ``(N, P)``
 temporaries of the NumPy version. It equals :func:`~teleop_force.friction.wavelet_network.psi_block`
-followed by :func:`~teleop_force.lowpass.lowpass_batch` up to the approximations below (the
+followed by :func:`~teleop_force.identification.lowpass.lowpass_batch` up to the approximations
+below (the
 tests compare them on random networks: within 1e-13 of the largest value).
 
 How the work is cut:

@@ -2,7 +2,7 @@
 
 ``omni_sim.json`` is the dynamic model of the simulated Omni used by the demo and by the
 force-estimation service by default. It is created by ``python -m
-teleop_force.make_default_model``: the paper's identification protocol simulated on the
+teleop_force.models.make_default``: the paper's identification protocol simulated on the
 simulated Omni, identified with the coupled Coulomb-viscous friction (``coupled-cv``). A
 wavelet-network model (``--friction wn``) may replace it once its training is in place.
 """

@@ -1,7 +1,7 @@
 """The simulated PHANTOM Omni: plant, true friction, contact, unmodelled effects, PID, protocols.
 
 Everything needed to produce realistic recordings without the hardware: a
-:class:`SimulatedOmni` behind the :class:`~teleop_force.device.Device` interface, reference
+:class:`SimulatedOmni` behind the :class:`~teleop_force.robots.device.Device` interface, reference
 trajectories for the paper's experiments, and :func:`simulate_session` with ready-made
 protocol builders.
 """

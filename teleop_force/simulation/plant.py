@@ -1,4 +1,4 @@
-"""The simulated PHANTOM Omni behind the :class:`~teleop_force.device.Device` interface.
+"""The simulated PHANTOM Omni behind the :class:`~teleop_force.robots.device.Device` interface.
 
 Dynamics in motor coordinates (CONVENTIONS.md), with every effect on the left-hand side::
 
@@ -37,10 +37,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from teleop_force import omni
-from teleop_force.device import Device, JointState
 from teleop_force.errors import ConfigurationError, DataError, ModelError
-from teleop_force.robot import Robot, RobotDescription
+from teleop_force.robots import omni
+from teleop_force.robots.description import Robot, RobotDescription
+from teleop_force.robots.device import Device, JointState
 from teleop_force.simulation.contact import PlaneContact
 from teleop_force.simulation.effects import PlantEffect
 from teleop_force.simulation.true_friction import TrueFriction

@@ -1,7 +1,7 @@
 """Simulated recording sessions: the PID-controlled :class:`SimulatedOmni` following a reference.
 
 :func:`simulate_session` runs the control loop at 1 kHz through the
-:class:`~teleop_force.device.Device` interface (read, PID, command, step) and returns a
+:class:`~teleop_force.robots.device.Device` interface (read, PID, command, step) and returns a
 :class:`SimulatedSession` of arrays: what a real recording holds (time, measured angles,
 commanded torques, ground-truth tip force) plus the simulator's truth for tests (true state,
 reference, applied torque, true friction and effects torques).

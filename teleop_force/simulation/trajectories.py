@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop_force import omni
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.robots import omni
 
 #: Distance kept from the ends of the joint ranges [rad].
 DEFAULT_MARGIN_RAD = 0.1
@@ -186,7 +186,7 @@ def _minimum_jerk(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def omni_inverse_kinematics(p_in_base_m: np.ndarray) -> np.ndarray:
     """Omni joint angles putting the tip at ``p`` ((3,) -> (3,), (N, 3) -> (N, 3)).
 
-    Inverts :func:`teleop_force.omni.tip_position_formula` on the elbow-up branch (link 1
+    Inverts :func:`teleop_force.robots.omni.tip_position_formula` on the elbow-up branch (link 1
     above the line from the shoulder to the tip), the Omni's working posture.
 
     Raises:
@@ -214,7 +214,7 @@ def omni_inverse_kinematics(p_in_base_m: np.ndarray) -> np.ndarray:
 
 
 def _omni_tip_jacobians(q: np.ndarray) -> np.ndarray:
-    """:func:`teleop_force.omni.tip_jacobian_formula` for a batch of angles (N, 3) -> (N, 3, 3)."""
+    """:func:`~teleop_force.robots.omni.tip_jacobian_formula` of a batch of angles (N, 3)."""
     q1, q2, q3 = q[:, 0], q[:, 1], q[:, 2]
     l1, l2 = omni.UPPER_ARM_LENGTH_M, omni.FOREARM_LENGTH_M
     r = l1 * np.cos(q2) + l2 * np.sin(q3)

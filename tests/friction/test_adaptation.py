@@ -12,7 +12,7 @@ from teleop_force.friction.adaptation import (
     fit_batch,
 )
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
-from teleop_force.lowpass import lowpass_batch
+from teleop_force.identification.lowpass import lowpass_batch
 
 FS_HZ = 1000.0
 

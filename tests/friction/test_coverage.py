@@ -9,12 +9,12 @@ from teleop_force.errors import ConfigurationError, ModelError
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageConfig, CoverageMap
 from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
-from teleop_force.omni import Q_MAX_RAD, Q_MIN_RAD
-from teleop_force.training_trajectory import (
+from teleop_force.identification.training_trajectory import (
     VelocityRegion,
     region_coverage,
     training_trajectory,
 )
+from teleop_force.robots.omni import Q_MAX_RAD, Q_MIN_RAD
 
 INPUTS = ((0,), (1, 2), (1, 2))
 LO = ((-2.0,), (-2.0, -2.0), (-2.0, -2.0))

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teleop_force.dvrk_mtm import dvrk_mtm_description, mtm_model_coupling
-from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import ModelError, ModelFileError, TeleopForceError
-from teleop_force.estimation import ForceEstimator
+from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.friction import CoulombViscous, friction_from_dict
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction, distinct_axes
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.robots.dvrk_mtm import dvrk_mtm_description, mtm_model_coupling
 from tests.fuzz.targets import model_seed_dicts
 from tests.shared_data import require
 
@@ -207,8 +207,8 @@ def test_every_bad_number_is_refused_or_gives_a_working_estimator(tmp_path: Path
 
 def test_shared_mtm_data_model_coordinates_lower_joints_2_and_3(tmp_path: Path):
     """Identified on trajectory one, evaluated on trajectory two (the held-out one)."""
-    from teleop_force.dvrk_mtm import read_mtm_csv
-    from teleop_force.model_fitting import evaluate_model, identify_model
+    from teleop_force.identification.pipeline import evaluate_model, identify_model
+    from teleop_force.robots.dvrk_mtm import read_mtm_csv
 
     folder = require("dvrk_mtm")
     train = read_mtm_csv(folder / "mtm_traj_one_results.csv").recording

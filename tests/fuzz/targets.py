@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import DataError, MessageError, ModelError, ModelFileError
-from teleop_force.interchange_csv import Recording, read_interchange_csv, write_interchange_csv
-from teleop_force.mcap_session import SessionReader, SessionWriter, read_session_as_recording
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.io.interchange_csv import Recording, read_interchange_csv, write_interchange_csv
+from teleop_force.io.mcap_session import SessionReader, SessionWriter, read_session_as_recording
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
 
 #: Outcomes per target name: {"accepted": n, "rejected": n}.
 COUNTS: dict[str, Counter[str]] = {}
@@ -314,7 +314,7 @@ def robot_input(kind: str, body: bytes) -> bytes:
 
 
 def _read_robot(data: bytes) -> object:
-    from teleop_force.robot_file import load_robot_description
+    from teleop_force.robots.file import load_robot_description
 
     if not data:
         raise DataError("empty input")
@@ -363,7 +363,7 @@ def _load_model(data: bytes) -> object:
 def _model_to_estimator(data: bytes) -> object:
     """What the service does with a model file it is asked to load (read, build, try)."""
     from teleop_force.errors import TeleopForceError
-    from teleop_force.estimation import ForceEstimator
+    from teleop_force.estimation.estimator import ForceEstimator
 
     model = DynamicModel.load(_scratch("model.json", data))
     estimator = ForceEstimator(model)
@@ -387,7 +387,8 @@ _MODEL_ERRORS = (ModelFileError, ModelError, DataError)
 #: Findings of this fuzzing not fixed yet, reported to the owners of the modules (see
 #: docs/reliability.md): ``{"X1": KnownIssue("X1", TypeError, r"message", ("module.py",))}``.
 #: R1 (robot_file) and M1-M4 (dynamic_model, regressor, friction from_dict) were fixed: the
-#: tests in tests/test_robot_file.py and tests/test_dynamic_model_file.py keep them fixed.
+#: tests in tests/robots/test_robot_file.py and tests/identification/test_dynamic_model_file.py
+#: keep them fixed.
 KNOWN_ISSUES: dict[str, KnownIssue] = {}
 
 TARGETS: dict[str, Target] = {

@@ -18,15 +18,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from master_slave.slave import SetpointInbox
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import MessageError
-from teleop_force.mcap_session import SessionReader
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
-from teleop_force.service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
-from teleop_force.service_transport import declare_data_publisher, query_json
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
 
 from .strategies import mutate_bytes
 from .targets import count, fuzzed_payloads, message_examples

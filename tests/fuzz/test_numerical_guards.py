@@ -1,8 +1,10 @@
 """Numerical guards: singular Jacobians, untrained velocities, non-finite input, drift.
 
 Already covered elsewhere (checked, not repeated): the exactly singular Jacobian
-(``tests/test_estimation.py::test_singular_jacobian_is_reported_not_divided``), NaN / inf in
-every message field (``tests/test_messages.py``), the projection ``||c_j|| <= B`` under any
+(``tests/estimation/test_estimator.py::test_singular_jacobian_is_reported_not_divided``), NaN / inf
+in
+every message field (``tests/transport/test_messages.py``), the projection ``||c_j|| <= B`` under
+any
 gain and a truth far outside the ball (``tests/friction/test_adaptation.py``), the blend to
 the fallback at the friction level (``tests/friction/test_coverage.py``).
 """
@@ -20,20 +22,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import DataError
-from teleop_force.estimation import DEFAULT_SIGMA_MIN, ForceEstimator
+from teleop_force.estimation.estimator import DEFAULT_SIGMA_MIN, ForceEstimator
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
+from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
-from teleop_force.omni import omni_description
-from teleop_force.robot import Robot
-from teleop_force.service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
-from teleop_force.service_adaptation import OnlineAdaptation
-from teleop_force.service_transport import declare_data_publisher
-from teleop_force.zenoh_session import ZenohOptions, open_session
+from teleop_force.robots.description import Robot
+from teleop_force.robots.omni import omni_description
+from teleop_force.service.adaptation import OnlineAdaptation
+from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher
+from teleop_force.transport.session import ZenohOptions, open_session
 
 INPUTS = ((0,), (1, 2), (1, 2))
 

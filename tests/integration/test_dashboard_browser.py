@@ -35,10 +35,15 @@ import numpy as np
 import pytest
 import zenoh
 
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.service_transport import declare_data_publisher
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [

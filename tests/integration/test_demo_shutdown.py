@@ -14,7 +14,7 @@ from teleop_helpers import STARTUP_TIMEOUT_S, alive, python_module, wait_for
 
 def run_demo(tmp_path, *extra: str) -> subprocess.Popen:
     command = python_module(
-        "teleop_force.cli", "demo", "--headless", "--record-dir", str(tmp_path),
+        "teleop_force.cli.main", "demo", "--headless", "--record-dir", str(tmp_path),
         "--summary-json", str(tmp_path / "summary.json"), *extra,
     )  # fmt: skip
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

@@ -31,12 +31,17 @@ import pytest
 import zenoh
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
 
-from teleop_force import keys
-from teleop_force import messages as m
 from teleop_force.errors import MessageError, TransportError
-from teleop_force.mcap_session import SessionReader
-from teleop_force.service_transport import declare_data_publisher, query_json
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+from teleop_force.io.mcap_session import SessionReader
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -153,7 +158,7 @@ class System:
             record = self.tmp / f"service-{len(self.records)}.mcap"
             self.records.append(record)
             return python_module(
-                "teleop_force.service", "--device", SLAVE, "--master", MASTER,
+                "teleop_force.service.force_service", "--device", SLAVE, "--master", MASTER,
                 "--record", str(record), "--record-flush-s", "0.05", *self.zenoh_args,
             )  # fmt: skip
         module = "master_slave.slave" if name == "slave" else "master_slave.master"
@@ -257,7 +262,7 @@ def test_router_restart_clients_reconnect_and_the_stream_resumes(tmp_path):
     port = free_tcp_port()
     endpoint = listen_endpoint(port)
     log = tmp_path / "processes.log"
-    router_argv = python_module("teleop_force.router", "--listen", endpoint)
+    router_argv = python_module("teleop_force.transport.router", "--listen", endpoint)
     router = spawn(router_argv, log)
     session = None
     system = None

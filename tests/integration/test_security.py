@@ -3,7 +3,8 @@
 The certificates are made by the test with the ``openssl`` command (a throw-away CA and one
 certificate for 127.0.0.1 / localhost, valid for a day); without ``openssl`` the TLS tests are
 skipped. The service-side refusal of files outside the allowed folders is in
-``tests/test_service_controls.py``, the dashboard side in ``tests/web/test_web_allowlist.py``.
+``tests/service/test_service_controls.py``, the dashboard side in
+``tests/web/test_web_allowlist.py``.
 """
 
 from __future__ import annotations
@@ -22,14 +23,19 @@ import pytest
 import zenoh
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
 
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.dynamic_model import DynamicModel
 from teleop_force.errors import TransportError
+from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
-from teleop_force.service import ForceService, ServiceConfig
-from teleop_force.service_transport import declare_data_publisher, query_json
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+from teleop_force.service.force_service import ForceService, ServiceConfig
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 OPENSSL = shutil.which("openssl")
@@ -128,7 +134,8 @@ def test_the_socket_check_sees_a_non_loopback_listener():
 
 
 def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
-    """The default flags of ``python -m teleop_force.service`` and ``python -m web``."""
+    """The default flags of ``python -m teleop_force.service.force_service`` and ``python -m
+    web``."""
     endpoint = listen_endpoint(free_tcp_port())
     session = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
     tokens: set[str] = set()
@@ -138,7 +145,12 @@ def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
     log = tmp_path / "processes.log"
     port = free_tcp_port()
     processes = [
-        spawn(python_module("teleop_force.service", "--device", "sec", "--connect", endpoint), log),
+        spawn(
+            python_module(
+                "teleop_force.service.force_service", "--device", "sec", "--connect", endpoint
+            ),
+            log,
+        ),
         spawn(
             python_module("web", "--device", "sec", "--port", str(port), "--connect", endpoint), log
         ),
@@ -164,7 +176,7 @@ def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
 def test_demo_listens_on_loopback_only(tmp_path):
     port = free_tcp_port()
     demo = subprocess.Popen(
-        python_module("teleop_force.cli", "demo", "--port", str(port), "--record-dir",
+        python_module("teleop_force.cli.main", "demo", "--port", str(port), "--record-dir",
                       str(tmp_path)),
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )  # fmt: skip

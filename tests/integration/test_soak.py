@@ -42,11 +42,11 @@ import pytest
 import zenoh
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, wait_for
 
-from teleop_force import keys
-from teleop_force import messages as m
-from teleop_force.process_memory import resident_memory_mb
-from teleop_force.service_accuracy import FOLD_KEEP, AccuracyConfig, ForceAccuracy
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, open_session
+from teleop_force.process.memory import resident_memory_mb
+from teleop_force.service.accuracy import FOLD_KEEP, AccuracyConfig, ForceAccuracy
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.session import ZenohOptions, free_tcp_port, open_session
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "test-output" / "soak.json"
@@ -163,7 +163,7 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
     load_start = os.getloadavg()
     with open(out_path, "w") as out:
         demo = subprocess.Popen(
-            python_module("teleop_force.cli", "demo", "--port", str(port), "--record-dir",
+            python_module("teleop_force.cli.main", "demo", "--port", str(port), "--record-dir",
                           str(tmp_path), "--summary-json", str(summary_path),
                           "--duration", f"{SOAK_S:g}"),
             stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -311,9 +311,9 @@ def test_the_supervisors_accuracy_accumulator_stays_bounded():
 
 
 def test_the_services_malformed_table_stays_bounded():
-    from teleop_force.dynamic_model import DynamicModel
+    from teleop_force.identification.dynamic_model import DynamicModel
     from teleop_force.models import DEFAULT_MODEL_PATH
-    from teleop_force.service import MAX_COUNTED_KEYS, OTHER_KEYS, ForceService
+    from teleop_force.service.force_service import MAX_COUNTED_KEYS, OTHER_KEYS, ForceService
 
     session = open_session(ZenohOptions(mode="peer", listen=(), multicast_scouting=False))
     try:

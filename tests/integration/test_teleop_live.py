@@ -21,11 +21,17 @@ import pytest
 import zenoh
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
 
-from teleop_force import cli, keys
-from teleop_force import messages as m
-from teleop_force.mcap_session import SessionReader
-from teleop_force.service_transport import query_json
-from teleop_force.zenoh_session import ZenohOptions, free_tcp_port, listen_endpoint, open_session
+from teleop_force.cli import main as cli
+from teleop_force.io.mcap_session import SessionReader
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import query_json
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
 
 MASTER, SLAVE = "it-master", "it-slave"
 RUN_S = 1.5
@@ -81,7 +87,8 @@ def live(tmp_path_factory):
     result: dict = {"record": record, "log": log, "tmp": tmp}
     try:
         processes["service"] = spawn(
-            python_module("teleop_force.service", "--device", SLAVE, "--master", MASTER,
+            python_module("teleop_force.service.force_service", "--device", SLAVE, "--master",
+            MASTER,
                           "--record", str(record), *connect), log)  # fmt: skip
         wait_for(
             lambda: keys.alive(SLAVE, "service") in observer.tokens, STARTUP_TIMEOUT_S, "service"

@@ -9,10 +9,10 @@ import time
 import pytest
 import zenoh
 
-from teleop_force import keys
-from teleop_force import messages as m
 from teleop_force.errors import ConfigurationError, TransportError
-from teleop_force.zenoh_session import (
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.session import (
     ZenohOptions,
     add_zenoh_arguments,
     free_tcp_port,

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from teleop_force import omni
-from teleop_force.device import DeviceClosedError
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.robots import omni
+from teleop_force.robots.device import DeviceClosedError
 from teleop_force.simulation.plant import PlantConfig, SimulatedOmni
 
 Q_MID = np.array([0.2, 0.8, 0.3])

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from teleop_force import omni
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.robots import omni
 from teleop_force.simulation.trajectories import (
     DEFAULT_MARGIN_RAD,
     CartesianWaypoints,

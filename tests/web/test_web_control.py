@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from teleop_force import keys
 from teleop_force.errors import ConfigurationError
-from teleop_force.zenoh_session import ZenohOptions, open_session
+from teleop_force.transport import keys
+from teleop_force.transport.session import ZenohOptions, open_session
 from web.control import (
     ReplayProcess,
     ServiceClient,

@@ -2,7 +2,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from teleop_force.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M, tip_position_formula
+from teleop_force.robots.omni import FOREARM_LENGTH_M, UPPER_ARM_LENGTH_M, tip_position_formula
 from web.geometry import (
     R_WORLD_BASE,
     arm_frame_quats,

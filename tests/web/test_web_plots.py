@@ -1,6 +1,6 @@
 import numpy as np
 
-from teleop_force import messages as m
+from teleop_force.transport import messages as m
 from web.plots import plot_frames, uplot_safe
 from web.telemetry import Telemetry
 

@@ -1,6 +1,6 @@
 import math
 
-from teleop_force.messages import SafetyState
+from teleop_force.transport.messages import SafetyState
 from web.status import Trust, TrustInputs, assess, banner_html
 
 

@@ -2,7 +2,7 @@ import math
 
 import numpy as np
 
-from teleop_force import messages as m
+from teleop_force.transport import messages as m
 from web.telemetry import FE_F, FE_SOURCE_SEQ, FE_TRAINED, JS_QD, Telemetry
 
 

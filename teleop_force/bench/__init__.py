@@ -1,0 +1,1 @@
+"""``teleop-force bench``: performance figures measured in one run."""

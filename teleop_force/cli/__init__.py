@@ -1,0 +1,1 @@
+"""The ``teleop-force`` command line and its demo supervisor."""

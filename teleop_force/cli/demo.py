@@ -1,0 +1,710 @@
+r"""``teleop-force demo``: master, slave, service (and dashboard) on loopback, supervised.
+
+The supervisor opens the rendezvous Zenoh endpoint ``tcp/127.0.0.1:<free port>`` (peer mode,
+multicast scouting off); every child is a peer that ``--connect``\\ s to it, and Zenoh's gossip
+lets the peers connect to one another. The children start together (their imports overlap);
+each one's liveliness token tells the supervisor it is up:
+
+1. the force-estimation service (``python -m teleop_force.service.force_service``), recording the
+session
+   to ``recordings/demo-<timestamp>.mcap``;
+2. the slave (``python -m master_slave.slave``), which starts streaming once the service
+   subscribes to its joint states;
+3. the master (``python -m master_slave.master``), which starts once the slave subscribes to
+   its setpoints;
+4. the dashboard (``python -m web --device slave --port P --connect <endpoint>``) unless
+   ``--headless``, or with a message if ``web/__main__.py`` does not exist yet.
+
+Every second it prints the service's figures (estimated vs true force, rates, lost messages,
+latencies). After ``--duration`` (counted from when the master runs) or on Ctrl-C / SIGTERM it
+collects the final statistics, stops the children (master first) and prints the summary:
+messages lost, master -> slave latency, slave -> estimate latency, and the force-estimate RMS
+error during contact as a fraction of the RMS true force (``--summary-json`` writes it too).
+
+Children run in their own process groups (a terminal's Ctrl-C reaches only the supervisor,
+which stops them in order); each group gets SIGTERM, then SIGKILL after a timeout. If the
+supervisor itself dies, the children stop by themselves: on Linux they get SIGTERM
+(``PR_SET_PDEATHSIG``), and in any case they watch their parent
+(``$TELEOP_FORCE_SUPERVISOR_PID``) and stop within a quarter of a second of it going away.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import IO, Any, Final
+
+import zenoh
+
+from teleop_force.errors import ConfigurationError, DataError, MessageError, TransportError
+from teleop_force.process.lifetime import SUPERVISOR_PID_ENV, StopSignal, write_json
+from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import (
+    declare_liveliness_subscriber,
+    declare_subscriber,
+    query_json,
+    undeclare_all,
+)
+from teleop_force.transport.session import (
+    ZenohOptions,
+    free_tcp_port,
+    listen_endpoint,
+    open_session,
+)
+from teleop_force.transport.stream_stats import SequenceTracker
+
+DEFAULT_DASHBOARD_PORT: Final = 8080
+_PR_SET_PDEATHSIG: Final = 1
+_STOP_TIMEOUT_S: Final = 5.0
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """Settings of :func:`run_demo`.
+
+    Attributes:
+        duration_s: Run this long once the master runs (``None``: until Ctrl-C).
+        headless: Do not start the dashboard.
+        dashboard_port: HTTP port of the dashboard.
+        zenoh_port: Port of the rendezvous endpoint (``None``: a free one).
+        model: Model for the service (``None``: the shipped one).
+        record_dir: Where the session is recorded.
+        summary_json: Where to write the final summary as JSON.
+        master: Device id of the master.
+        slave: Device id of the slave.
+        motion: Operator script of the master (``palpation`` or ``random``).
+        haptic_feedback: Feed the estimated force back to the master.
+        surface_y_m: Height of the slave's tissue (and of the operator's palpation script).
+        startup_timeout_s: Longest wait for a child to come up.
+        report_period_s: Period of the figures printed while running (0: none).
+        accuracy: Contact threshold of the accuracy figure.
+
+    """
+
+    duration_s: float | None = None
+    headless: bool = False
+    dashboard_port: int = DEFAULT_DASHBOARD_PORT
+    zenoh_port: int | None = None
+    model: Path | None = None
+    record_dir: Path = Path("recordings")
+    summary_json: Path | None = None
+    master: str = "master"
+    slave: str = "slave"
+    motion: str = "palpation"
+    haptic_feedback: bool = False
+    surface_y_m: float = -0.06
+    startup_timeout_s: float = 90.0
+    report_period_s: float = 1.0
+    accuracy: AccuracyConfig = field(default_factory=AccuracyConfig)
+
+    def __post_init__(self) -> None:
+        """Check the ranges and ids."""
+        if self.duration_s is not None and not (
+            math.isfinite(self.duration_s) and self.duration_s > 0.0
+        ):
+            raise ConfigurationError(f"--duration must be > 0, got {self.duration_s}")
+        if not 1 <= self.dashboard_port <= 65535:
+            raise ConfigurationError(f"--port must be in 1..65535, got {self.dashboard_port}")
+        if self.zenoh_port is not None and not 1 <= self.zenoh_port <= 65535:
+            raise ConfigurationError(f"--zenoh-port must be in 1..65535, got {self.zenoh_port}")
+        keys.validate_chunk(self.master)
+        keys.validate_chunk(self.slave)
+        if self.master == self.slave:
+            raise ConfigurationError("master and slave need different device ids")
+        if not self.startup_timeout_s > 0.0 or self.report_period_s < 0.0:
+            raise ConfigurationError("startup_timeout_s must be > 0 and report_period_s >= 0")
+
+
+# ------------------------------------------------------------------------------ children
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
+    """Ask the kernel to SIGTERM this child when the supervisor dies (Linux only)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+
+
+class Child:
+    """One supervised child process in its own process group."""
+
+    def __init__(self, name: str, argv: list[str], log: IO[bytes]) -> None:
+        """Start ``argv``; its stdout and stderr go to ``log``."""
+        self.name = name
+        self.argv = argv
+        preexec = _die_with_parent if sys.platform.startswith("linux") else None
+        environment = {**os.environ, SUPERVISOR_PID_ENV: str(os.getpid())}
+        try:
+            self.process = subprocess.Popen(
+                argv,
+                env=environment,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=log,
+                start_new_session=True,
+                preexec_fn=preexec,
+            )
+        except OSError as exc:
+            raise TransportError(f"cannot start {name}: {exc}") from None
+        self._stopped = False
+
+    @property
+    def pid(self) -> int:
+        """Process id (also its process-group id)."""
+        return self.process.pid
+
+    def cpu_s(self) -> float | None:
+        """CPU time (user + system) the process has used so far [s] (Linux; else ``None``)."""
+        try:
+            with open(f"/proc/{self.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            return None
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def running(self) -> bool:
+        """Whether the process has not exited."""
+        return self.process.poll() is None
+
+    def signal_group(self, signum: int) -> None:
+        """Send ``signum`` to the child's whole process group (if it still exists)."""
+        try:
+            os.killpg(self.pid, signum)
+        except (ProcessLookupError, PermissionError):
+            return
+
+    def stop(self, timeout_s: float = _STOP_TIMEOUT_S) -> int | None:
+        """SIGTERM the group, SIGKILL it after ``timeout_s``; return the exit code (idempotent)."""
+        if self._stopped:
+            return self.process.returncode
+        self._stopped = True
+        if self.running():
+            self.signal_group(signal.SIGTERM)
+            try:
+                self.process.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.signal_group(signal.SIGKILL)
+                self.process.wait(timeout_s)
+        # Anything the child left in its group goes too.
+        self.signal_group(signal.SIGKILL)
+        return self.process.returncode
+
+
+def dashboard_available() -> bool:
+    """Whether ``python -m web`` can run (``web/__main__.py`` exists)."""
+    try:
+        return importlib.util.find_spec("web.__main__") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+# ------------------------------------------------------------------------------ supervisor
+
+
+class _Presence:
+    """Liveliness tokens currently present."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.present: set[str] = set()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.present.add(key)
+            else:
+                self.present.discard(key)
+
+    def has(self, key: str) -> bool:
+        with self._lock:
+            return key in self.present
+
+
+class _Monitor:
+    """The supervisor's own subscriptions: estimates, true forces, slave status.
+
+    The Zenoh callbacks only queue the payloads; one worker thread decodes them, so a busy
+    supervisor never holds up a receive thread (and, through congestion control BLOCK, the
+    publishers: the service and the slave).
+    """
+
+    def __init__(self, accuracy: AccuracyConfig) -> None:
+        self.accuracy = ForceAccuracy(accuracy)
+        self.estimates = SequenceTracker()
+        self.true_forces = SequenceTracker()
+        self.malformed = 0
+        self.state = "unknown"
+        self.reason = ""
+        self.holds_seen = 0
+        self._queue: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
+        self._thread.start()
+
+    def on_estimate(self, sample: zenoh.Sample) -> None:
+        self._queue.put(("estimate", sample.payload.to_bytes()))
+
+    def on_true_force(self, sample: zenoh.Sample) -> None:
+        self._queue.put(("true", sample.payload.to_bytes()))
+
+    def on_status(self, sample: zenoh.Sample) -> None:
+        self._queue.put(("status", sample.payload.to_bytes()))
+
+    def drain(self, timeout_s: float = 10.0) -> None:
+        """Wait until every queued payload is processed (or ``timeout_s``)."""
+        deadline = time.perf_counter() + timeout_s
+        while not self._queue.empty() and time.perf_counter() < deadline:
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        """Stop the worker thread."""
+        self._queue.put(None)
+        self._thread.join(5.0)
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            kind, payload = item
+            try:
+                self._process(kind, payload)
+            except MessageError:
+                self.malformed += 1
+
+    def _process(self, kind: str, payload: bytes) -> None:
+        if kind == "estimate":
+            estimate = m.ForceEstimate.decode(payload)
+            self.estimates.observe(estimate.seq)
+            self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
+        elif kind == "true":
+            force = m.ContactForce.decode(payload)
+            self.true_forces.observe(force.seq)
+            self.accuracy.add_true(force.seq, force.f_n)
+        else:
+            status = m.Status.decode(payload)
+            state = status.state.name.lower()
+            if state == "holding" and self.state != "holding":
+                self.holds_seen += 1
+            self.state, self.reason = state, status.reason
+
+
+def _python_module(module: str, *args: str) -> list[str]:
+    return [sys.executable, "-m", module, *args]
+
+
+def _fmt_force(force: Sequence[float] | None) -> str:
+    if force is None:
+        return "(   -  ,   -  ,   -  )"
+    return "(" + ",".join(f"{x:+6.2f}" if math.isfinite(x) else "  nan " for x in force) + ")"
+
+
+def _ms(summary: dict[str, Any] | None, key: str) -> str:
+    value = None if summary is None else summary.get(key)
+    return "-" if value is None else f"{value:.2f}"
+
+
+class DemoSupervisor:
+    """Starts, watches and stops the demo's processes (module docstring)."""
+
+    def __init__(self, config: DemoConfig, stop: StopSignal, out: IO[str] | None = None) -> None:
+        """Prepare; :meth:`run` does the work."""
+        self.config = config
+        self.stop = stop
+        self.out = out if out is not None else sys.stdout
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        self.recording = config.record_dir / f"demo-{stamp}.mcap"
+        self.log_path = config.record_dir / f"demo-{stamp}.log"
+        self.children: list[Child] = []
+        self.presence = _Presence()
+        self.monitor = _Monitor(config.accuracy)
+        self.session: zenoh.Session | None = None
+        self.endpoint = ""
+        self.failure = ""
+        self.started_s = 0.0
+        self.running_s = 0.0
+        self.ended_s = 0.0
+        self.cpu_percent: dict[str, float | None] = {}
+        self._cpu_at_run: dict[str, float | None] = {}
+        self._own_cpu_at_run = 0.0
+
+    def say(self, message: str) -> None:
+        """Print one line for the user."""
+        print(message, file=self.out, flush=True)
+
+    # -- lifetime -------------------------------------------------------------------------------
+
+    def run(self) -> dict[str, Any]:
+        """Run the demo to the end; return the summary (also printed)."""
+        config = self.config
+        try:
+            config.record_dir.mkdir(parents=True, exist_ok=True)
+            log = open(self.log_path, "ab")  # noqa: SIM115 - closed below
+        except OSError as exc:
+            raise DataError(f"cannot write: {exc.strerror or exc}", path=self.log_path) from None
+        with log:
+            return self._run(log)
+
+    def _run(self, log: IO[bytes]) -> dict[str, Any]:
+        config = self.config
+        port = config.zenoh_port or free_tcp_port()
+        self.endpoint = listen_endpoint(port)
+        self.session = open_session(
+            ZenohOptions(mode="peer", listen=(self.endpoint,), multicast_scouting=False)
+        )
+        entities: list[Any] = []
+        final: dict[str, Any] = {}
+        try:
+            entities.append(
+                declare_liveliness_subscriber(
+                    self.session, keys.alive_any(), self.presence.on_sample
+                )
+            )
+            entities.append(
+                declare_subscriber(
+                    self.session, keys.estimated_cf(config.slave), self.monitor.on_estimate
+                )
+            )
+            entities.append(
+                declare_subscriber(
+                    self.session, keys.measured_cf(config.slave), self.monitor.on_true_force
+                )
+            )
+            entities.append(
+                declare_subscriber(self.session, keys.status(config.slave), self.monitor.on_status)
+            )
+            self.say(f"zenoh endpoint: {self.endpoint} (peer mode, no multicast)")
+            self.say(f"recording: {self.recording}   logs: {self.log_path}")
+            if self._start_all(log):
+                self._watch()
+            self.ended_s = time.perf_counter()
+            final = self._final_stats()
+            self._stop_children()
+        finally:
+            self._stop_children()
+            undeclare_all(*entities)
+            self.session.close()
+            self.monitor.drain()
+            self.monitor.close()
+        summary = self._summary(final)
+        self._print_summary(summary)
+        if config.summary_json is not None:
+            write_json(config.summary_json, summary)
+        return summary
+
+    def _connect_args(self) -> list[str]:
+        return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
+
+    def _start_all(self, log: IO[bytes]) -> bool:
+        config = self.config
+        self.started_s = time.perf_counter()
+        service = [
+            "--device", config.slave, "--master", config.master, "--record", str(self.recording),
+        ]  # fmt: skip
+        if config.model is not None:
+            service += ["--model", str(config.model)]
+        wait = str(config.startup_timeout_s)
+        surface = str(config.surface_y_m)
+        master = [
+            "--device", config.master, "--slave", config.slave, "--motion", config.motion,
+            "--surface-y", surface, "--wait-subscribers", wait,
+        ]  # fmt: skip
+        if config.haptic_feedback:
+            master.append("--haptic-feedback")
+        slave = [
+            "--device", config.slave, "--master", config.master,
+            "--surface-y", surface, "--wait-subscribers", wait,
+        ]  # fmt: skip
+        steps = [
+            (
+                "service",
+                "teleop_force.service.force_service",
+                service,
+                keys.alive(config.slave, "service"),
+            ),
+            ("slave", "master_slave.slave", slave, keys.alive(config.slave, "slave")),
+            ("master", "master_slave.master", master, keys.alive(config.master, "master")),
+        ]
+        # Started together (their imports overlap); the order of the data flow is kept by the
+        # handshakes: the slave streams once the service subscribes to its joint states, the
+        # master once the slave subscribes to its setpoints.
+        started = []
+        for name, module, args, token in steps:
+            child = Child(name, _python_module(module, *args, *self._connect_args()), log)
+            self.children.append(child)
+            started.append((child, token))
+            self.say(f"started {name} (pid {child.pid})")
+        for child, token in started:
+            if not self._wait_for_token(child, token):
+                return False
+        self._start_dashboard(log)
+        self.running_s = time.perf_counter()
+        self._cpu_at_run = {c.name: c.cpu_s() for c in self.children}
+        own = os.times()
+        self._own_cpu_at_run = own.user + own.system
+        startup = self.running_s - self.started_s
+        until = "Ctrl-C" if config.duration_s is None else f"{config.duration_s:g} s (or Ctrl-C)"
+        self.say(f"all processes up in {startup:.1f} s; running until {until}")
+        return True
+
+    def _start_dashboard(self, log: IO[bytes]) -> None:
+        config = self.config
+        url = f"http://127.0.0.1:{config.dashboard_port}/"
+        if config.headless:
+            self.say("dashboard: not started (--headless)")
+            return
+        if not dashboard_available():
+            self.say("dashboard: not started: web/__main__.py does not exist yet")
+            return
+        args = [
+            "--device", config.slave, "--port", str(config.dashboard_port),
+            "--connect", self.endpoint,
+            "--master-device", config.master, "--tissue-y", str(config.surface_y_m),
+        ]  # fmt: skip
+        child = Child("dashboard", _python_module("web", *args), log)
+        self.children.append(child)
+        self.say(f"started dashboard (pid {child.pid})")
+        self.say(f"dashboard: {url}")
+
+    def _wait_for_token(self, child: Child, token: str) -> bool:
+        deadline = time.perf_counter() + self.config.startup_timeout_s
+        while not self.presence.has(token):
+            if self.stop.is_set():
+                self.failure = "interrupted during start-up"
+                return False
+            if not child.running():
+                code = child.process.returncode
+                self.failure = (
+                    f"{child.name} exited during start-up (code {code}); see {self.log_path}"
+                )
+                self.say(self.failure)
+                return False
+            if time.perf_counter() > deadline:
+                self.failure = (
+                    f"{child.name} did not come up within {self.config.startup_timeout_s:g} s"
+                )
+                self.say(self.failure)
+                return False
+            time.sleep(0.02)
+        return True
+
+    def _watch(self) -> None:
+        config = self.config
+        end = None if config.duration_s is None else self.running_s + config.duration_s
+        next_report = self.running_s + (config.report_period_s or math.inf)
+        while not self.stop.is_set():
+            now = time.perf_counter()
+            if end is not None and now >= end:
+                break
+            dead = [c for c in self.children if c.name != "dashboard" and not c.running()]
+            if dead:
+                code = dead[0].process.returncode
+                self.failure = (
+                    f"{dead[0].name} exited unexpectedly (code {code}); see {self.log_path}"
+                )
+                self.say(self.failure)
+                break
+            if now >= next_report:
+                self._report(now - self.running_s)
+                next_report += config.report_period_s
+            wake = min(next_report, end if end is not None else math.inf)
+            self.stop.wait(max(0.0, min(0.2, wake - time.perf_counter())))
+
+    def _query(self, key: str, timeout_s: float = 1.0) -> dict[str, Any] | None:
+        assert self.session is not None
+        try:
+            value = query_json(self.session, key, timeout_s)
+        except TransportError:
+            return None
+        return value if isinstance(value, dict) else None
+
+    def _report(self, elapsed_s: float) -> None:
+        config = self.config
+        service = self._query(keys.service_stats(config.slave), 0.5)
+        slave = self._query(keys.process_stats(config.slave, "slave"), 0.5)
+        accuracy = self.monitor.accuracy
+        js = (service or {}).get("joint_states", {})
+        lost = self._lost(service, slave)["total"]
+        relative = accuracy.summary()["relative_rms_error"] if int(elapsed_s) % 5 == 0 else None
+        line = (
+            f"t={elapsed_s:5.1f}s  F_est={_fmt_force(accuracy.latest_estimate)}  "
+            f"F_true={_fmt_force(accuracy.latest_true)} N  "
+            f"js {js.get('rate_hz', 0):6.1f} Hz  lost {lost}  "
+            f"lat m->s {_ms((slave or {}).get('setpoints', {}).get('latency_ms'), 'p50')}/"
+            f"{_ms((slave or {}).get('setpoints', {}).get('latency_ms'), 'p99')} ms  "
+            f"s->est {_ms((service or {}).get('latency_ms'), 'p50')}/"
+            f"{_ms((service or {}).get('latency_ms'), 'p99')} ms  "
+            f"{self.monitor.state}"
+        )
+        if relative is not None:
+            line += f"  rms err (contact) {relative:.1%}"
+        self.say(line)
+
+    def _lost(self, service: dict[str, Any] | None, slave: dict[str, Any] | None) -> dict[str, int]:
+        parts = {
+            "setpoints_at_slave": int((slave or {}).get("setpoints", {}).get("lost", 0)),
+            "joint_states_at_service": int((service or {}).get("joint_states", {}).get("lost", 0)),
+            "joint_states_dropped_by_service": int(
+                (service or {}).get("joint_states", {}).get("overflow_dropped", 0)
+            ),
+            "estimates_at_supervisor": self.monitor.estimates.lost,
+            "true_forces_at_supervisor": self.monitor.true_forces.lost,
+        }
+        parts["total"] = sum(parts.values())
+        return parts
+
+    def _final_stats(self) -> dict[str, Any]:
+        config = self.config
+        wall = time.perf_counter() - self.running_s if self.running_s else 0.0
+        for child in self.children:
+            now, then = child.cpu_s(), self._cpu_at_run.get(child.name)
+            percent = None
+            if now is not None and then is not None and wall > 0.0:
+                percent = round(100.0 * (now - then) / wall, 1)
+            self.cpu_percent[child.name] = percent
+        if wall > 0.0:
+            own = os.times()
+            used = own.user + own.system - self._own_cpu_at_run
+            self.cpu_percent["supervisor"] = round(100.0 * used / wall, 1)
+        return {
+            "service": self._query(keys.service_stats(config.slave), 2.0),
+            "slave": self._query(keys.process_stats(config.slave, "slave"), 2.0),
+            "master": self._query(keys.process_stats(config.master, "master"), 2.0),
+        }
+
+    def _stop_children(self) -> None:
+        order = {"master": 0, "dashboard": 1, "slave": 2, "service": 3}
+        for child in sorted(self.children, key=lambda c: order.get(c.name, 9)):
+            was_running = child.running()
+            code = child.stop()
+            if was_running and code not in (0, -signal.SIGTERM, None):
+                self.say(f"{child.name} exited with code {code}")
+
+    # -- summary --------------------------------------------------------------------------------
+
+    def _summary(self, final: dict[str, Any]) -> dict[str, Any]:
+        service, slave, master = final.get("service"), final.get("slave"), final.get("master")
+        lost = self._lost(service, slave)
+        setpoint_latency = (slave or {}).get("setpoints", {}).get("latency_ms") or {}
+        estimate_latency = (service or {}).get("latency_ms") or {}
+        accuracy = self.monitor.accuracy.summary()
+        running = self.ended_s - self.running_s if self.running_s else 0.0
+        return {
+            "ok": not self.failure,
+            "failure": self.failure,
+            "duration_s": round(running, 3),
+            "recording": str(self.recording),
+            "log": str(self.log_path),
+            "zenoh_endpoint": self.endpoint,
+            "pids": {c.name: c.pid for c in self.children},
+            "messages_lost": lost,
+            "master_to_slave_latency_ms": {
+                "p50": setpoint_latency.get("p50"),
+                "p99": setpoint_latency.get("p99"),
+                "max": setpoint_latency.get("max"),
+                "count": setpoint_latency.get("count"),
+            },
+            "slave_to_estimate_latency_ms": {
+                "p50": estimate_latency.get("p50"),
+                "p99": estimate_latency.get("p99"),
+                "max": estimate_latency.get("max"),
+                "count": estimate_latency.get("count"),
+            },
+            "force_error": accuracy,
+            "rates_hz": {
+                "joint_states_at_service": (service or {})
+                .get("joint_states", {})
+                .get("mean_rate_hz"),
+                "slave_loop": (slave or {}).get("loop", {}).get("rate_hz"),
+                "master_loop": (master or {}).get("loop", {}).get("rate_hz"),
+            },
+            "loop_overruns": {
+                "slave": (slave or {}).get("loop", {}).get("overruns"),
+                "master": (master or {}).get("loop", {}).get("overruns"),
+            },
+            "malformed_dropped": {
+                "service": (service or {}).get("malformed", {}).get("dropped"),
+                "slave": (slave or {}).get("setpoints", {}).get("malformed"),
+                "supervisor": self.monitor.malformed,
+            },
+            "slave_holds": (slave or {}).get("holds"),
+            "cpu_percent_of_one_core": self.cpu_percent,
+            "machine_load_average": list(os.getloadavg()),
+            "stats": final,
+        }
+
+    def _print_summary(self, summary: dict[str, Any]) -> None:
+        def ms(part: dict[str, Any]) -> str:
+            p50, p99 = part.get("p50"), part.get("p99")
+            if p50 is None or p99 is None:
+                return "n/a"
+            return f"p50 {p50:.3f} ms, p99 {p99:.3f} ms"
+
+        force = summary["force_error"]
+        lost = summary["messages_lost"]
+        relative = force.get("relative_rms_error")
+        lagfree = force.get("relative_rms_error_vs_filtered_true")
+        self.say("")
+        self.say("== demo summary ==")
+        if summary["failure"]:
+            self.say(f"FAILED: {summary['failure']}")
+        self.say(f"duration: {summary['duration_s']:.1f} s   recording: {summary['recording']}")
+        self.say(
+            f"messages lost: {lost['total']} (setpoints at slave {lost['setpoints_at_slave']}, "
+            f"joint states at service {lost['joint_states_at_service']}, estimates "
+            f"{lost['estimates_at_supervisor']}, true forces {lost['true_forces_at_supervisor']})"
+        )
+        to_slave = ms(summary["master_to_slave_latency_ms"])
+        to_estimate = ms(summary["slave_to_estimate_latency_ms"])
+        self.say(f"master->slave latency (setpoint stamp -> slave receipt): {to_slave}")
+        self.say(f"slave->estimate latency (joint-state stamp -> estimate): {to_estimate}")
+        if relative is None:
+            self.say("force estimate RMS error during contact: n/a (no contact)")
+        else:
+            self.say(
+                f"force estimate RMS error during contact: {force['rms_error_n']:.3f} N = "
+                f"{relative:.1%} of the RMS true force {force['rms_true_n']:.3f} N "
+                f"({force['contact_samples']} samples with "
+                f"|F| > {force['contact_threshold_n']:g} N; "
+                f"{lagfree:.1%} against the true force low-passed like the estimate)"
+            )
+        overruns = summary["loop_overruns"]
+        self.say(
+            f"loop overruns: slave {overruns['slave']}, master {overruns['master']}; "
+            f"slave holds: {summary['slave_holds']}"
+        )
+        cpu = ", ".join(f"{k} {v:.0f}%" for k, v in summary["cpu_percent_of_one_core"].items() if v)
+        load = ", ".join(f"{x:.1f}" for x in summary["machine_load_average"])
+        self.say(f"CPU while running (% of one core): {cpu}; machine load average {load}")
+
+
+def run_demo(config: DemoConfig, stop: StopSignal | None = None) -> dict[str, Any]:
+    """Run the demo (see the module docstring); return the summary."""
+    stop = stop if stop is not None else StopSignal()
+    return DemoSupervisor(config, stop).run()
+
+
+__all__ = [
+    "DEFAULT_DASHBOARD_PORT",
+    "Child",
+    "DemoConfig",
+    "DemoSupervisor",
+    "dashboard_available",
+    "run_demo",
+]

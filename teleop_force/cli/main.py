@@ -1,0 +1,491 @@
+"""The ``teleop-force`` command line (see ../shared/CONTRACT.md).
+
+Exit status 0 on success, 2 for bad usage or unreadable input with one line on stderr naming
+the file, row or field. ``--json`` output is a single JSON object on stdout; logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.transport.session import add_zenoh_arguments
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _load_recordings(
+    paths: Sequence[str], n_joints: int | None = None, robot: str | None = None
+) -> list[Any]:
+    from teleop_force.io.recordings import read_recording_with_notes
+
+    recordings = []
+    for p in paths:
+        recording, notes = read_recording_with_notes(Path(p), n_joints=n_joints, robot=robot)
+        for note in notes:
+            _log(note)
+        recordings.append(recording)
+    return recordings
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from teleop_force.identification.pipeline import WaveletOptions, identify_model
+    from teleop_force.robots.registry import resolve_robot
+
+    recordings = _load_recordings(args.data, robot=args.robot)
+    n = recordings[0].q_rad.shape[1]
+    description = resolve_robot(args.robot, n)
+    if description.name == "teststand":
+        from teleop_force.estimation.teststand import identify_teststand_command
+
+        return identify_teststand_command(recordings, description, args.friction, args.output, _log)
+    model, report = identify_model(
+        recordings, description, args.friction, wavelet=WaveletOptions(method=args.wn_fit)
+    )
+    model.save(args.output)
+    _log(report.rigid.table())
+    _log(
+        "training relative RMS per joint: "
+        + ", ".join(f"{x:.2%}" for x in report.friction_relative_rms)
+    )
+    for key, value in report.details.items():
+        _log(f"{key}: {value}")
+    _log(f"model written to {args.output}")
+    return EXIT_OK
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from teleop_force.identification.dynamic_model import DynamicModel
+    from teleop_force.identification.pipeline import evaluate_model
+
+    model = DynamicModel.load(args.model)
+    recordings = _load_recordings(args.data, model.n_joints, robot=model.robot)
+    result = evaluate_model(model, recordings)
+    payload = {
+        "relative_rms": [float(x) for x in result["relative_rms"]],
+        "samples": result["samples"],
+        "coverage": [float(x) for x in result["coverage"]],
+        "friction": model.friction.kind,
+        "robot": model.robot,
+    }
+    if args.json:
+        print(json.dumps(payload))
+    else:
+        for j, value in enumerate(payload["relative_rms"]):
+            print(
+                f"joint {j + 1}: relative RMS {value:.2%}, "
+                f"on trained ground {payload['coverage'][j]:.0%}"
+            )
+        print(f"samples: {payload['samples']}")
+    return EXIT_OK
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    from teleop_force.estimation.estimator import ForceEstimator
+    from teleop_force.identification.dynamic_model import DynamicModel
+
+    model = DynamicModel.load(args.model)
+    (recording,) = _load_recordings([args.data], model.n_joints, robot=model.robot)
+    estimator = ForceEstimator(model)
+    forces = np.empty((recording.t_s.size, 3))
+    for k in range(recording.t_s.size):
+        forces[k] = estimator.update(
+            recording.t_s[k], recording.q_rad[k], recording.tau_nm[k]
+        ).force_tip_in_base_n
+    table = np.column_stack((recording.t_s, forces))
+    np.savetxt(args.output, table, delimiter=",", header="t,f_x,f_y,f_z", comments="", fmt="%.9g")
+    _log(f"{recording.t_s.size} estimates written to {args.output}")
+    return EXIT_OK
+
+
+def _cmd_residual(args: argparse.Namespace) -> int:
+    from teleop_force.residual.loop import ResidualOptions, trace_residual
+    from teleop_force.residual.report import write_residual_report
+    from teleop_force.robots.registry import resolve_robot
+
+    recordings = _load_recordings(args.data, robot=args.robot)
+    description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
+    options = ResidualOptions(
+        friction=args.friction,
+        offsets=True if args.offsets else None,
+        effect_placement=args.effect_placement,
+    )
+    report = trace_residual(recordings, description, options)
+    if args.output:
+        path = write_residual_report(report, Path(args.output), list(description.joint_names))
+        _log(f"report written to {path}")
+    if args.json:
+        print(json.dumps(report.to_json()))
+    else:
+        for j in range(report.before.size):
+            print(
+                f"joint {j + 1}: held-out relative RMS "
+                f"{report.before[j]:.2%} -> {report.after[j]:.2%}"
+            )
+        for effect in report.effects:
+            e = effect.to_json()
+            print(
+                f"  + {e['description']}: {e['kind']}, "
+                f"explains {e['explained']:.1%} of joint {e['joint']}'s residual"
+            )
+        if not report.effects:
+            print("no significant effect found")
+    return EXIT_OK
+
+
+def _cmd_report_robots(args: argparse.Namespace) -> int:
+    from teleop_force.reports.robots import run_robot_reports
+
+    path = run_robot_reports(
+        Path(args.output),
+        None if args.datasets is None else Path(args.datasets),
+        residual=not args.skip_residual,
+        log=_log,
+    )
+    _log(f"report written to {path}")
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from teleop_force.cli.demo import DemoConfig, run_demo
+    from teleop_force.process.lifetime import StopSignal
+    from teleop_force.service.accuracy import AccuracyConfig
+
+    config = DemoConfig(
+        duration_s=args.duration,
+        headless=args.headless,
+        dashboard_port=args.port,
+        zenoh_port=args.zenoh_port,
+        model=None if args.model is None else Path(args.model),
+        record_dir=Path(args.record_dir),
+        summary_json=None if args.summary_json is None else Path(args.summary_json),
+        motion=args.motion,
+        haptic_feedback=args.haptic_feedback,
+        accuracy=AccuracyConfig(contact_threshold_n=args.contact_threshold),
+    )
+    if config.model is not None:
+        from teleop_force.identification.dynamic_model import DynamicModel
+
+        DynamicModel.load(config.model)  # a bad model is bad input: exit 2 before starting
+    from teleop_force.process.memory import MemoryTrimmer
+
+    with MemoryTrimmer():  # the supervisor runs as long as the demo
+        summary = run_demo(config, StopSignal().install())
+    return EXIT_OK if summary["ok"] else 1
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from teleop_force.io.mcap_session import SessionReader
+    from teleop_force.io.replay import ReplayConfig, primary_device, replay_session
+    from teleop_force.process.lifetime import StopSignal
+    from teleop_force.service.force_service import ForceService, ServiceConfig, load_model
+    from teleop_force.transport.session import open_session, options_from_args
+
+    speed = 0.0 if args.fast else args.speed
+    config = ReplayConfig(
+        path=Path(args.recording),
+        speed=speed,
+        device=args.device,
+        wait_subscribers_s=0.0 if args.no_wait else args.wait_subscribers,
+    )
+    if args.record is not None and not args.with_service:
+        raise ConfigurationError("--record needs --with-service (the service records)")
+    reader = SessionReader(config.path)  # unreadable recording: exit 2 before opening zenoh
+    device = primary_device(reader, config.device)
+    model = model_path = None
+    if args.with_service:
+        recorded = reader.metadata.get("model", "")
+        chosen = args.model or (recorded if recorded and Path(recorded).is_file() else None)
+        model, model_path = load_model(None if chosen is None else Path(chosen))
+    stop = StopSignal().install()
+    session = open_session(options_from_args(args))
+    service = None
+    try:
+        if model is not None:
+            service_config = ServiceConfig(
+                device=device,
+                master=reader.metadata.get("master_device") or None,
+                record_path=None if args.record is None else Path(args.record),
+                source="replay",
+            )
+            service = ForceService(session, model, service_config, model_path=model_path).start()
+        _log(
+            f"replaying {config.path} (device {device}) at "
+            + ("full speed" if speed == 0.0 else f"x{speed:g}")
+        )
+        result = replay_session(session, config, stop)
+        payload: dict[str, Any] = result.to_dict()
+        if service is not None:
+            expected = result.published.get(f"omni/{device}/measured_js", 0)
+            done, idle_since = -1, time.perf_counter()
+            while service.seqs.received < expected and time.perf_counter() - idle_since < 10.0:
+                if service.seqs.received != done:  # still progressing: keep waiting
+                    done, idle_since = service.seqs.received, time.perf_counter()
+                time.sleep(0.01)
+            service.close()
+            payload["service"] = service.stats()
+    finally:
+        if service is not None:
+            service.close()
+        session.close()
+    total = sum(result.published.values())
+    _log(
+        f"published {total} messages in {result.duration_s:.2f} s "
+        f"(recorded span {result.recorded_span_s:.2f} s)"
+    )
+    if service is not None:
+        stats = payload["service"]
+        _log(
+            f"service: {stats['estimates']['published']} estimates, "
+            f"{stats['joint_states']['lost']} joint states lost"
+            + (f", recorded to {args.record}" if args.record else "")
+        )
+    if args.json:
+        print(json.dumps(payload))
+    return EXIT_OK
+
+
+def _cmd_residual_blind(args: argparse.Namespace) -> int:
+    from teleop_force.reports.blind_tests import run_blind_tests, write_blind_report
+
+    cases = run_blind_tests(args.duration, log=_log)
+    path = write_blind_report(cases, Path(args.output))
+    print(path.read_text())
+    return EXIT_OK if all(c.passed for c in cases) else 1
+
+
+def _cmd_experiments(args: argparse.Namespace) -> int:
+    from teleop_force.reports.experiments import ExperimentOptions, run_experiments
+
+    options = ExperimentOptions(args.duration, args.test_duration, args.seed)
+    results = run_experiments(Path(args.output), options, log=_log)
+    _log(f"report written to {Path(args.output) / 'report.md'}")
+    if args.json:
+        print(json.dumps(results, default=float))
+    return EXIT_OK
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from teleop_force.bench.main import format_table, options_from_args, run_bench
+
+    result = run_bench(options_from_args(args), log=_log)
+    print(json.dumps(result) if args.json else format_table(result))
+    return EXIT_OK
+
+
+def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
+    def run(args: argparse.Namespace) -> int:
+        _log(f"teleop-force {name}: not implemented yet")
+        return 1
+
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser of ``teleop-force``."""
+    parser = argparse.ArgumentParser(prog="teleop-force", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("identify", help="identify rigid-body parameters and friction")
+    p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
+    p.add_argument("--robot", default="omni", help="omni (default), none, or a description file")
+    p.add_argument(
+        "--friction",
+        choices=("cv", "coupled-cv", "model-cv", "wn"),
+        default="wn",
+        help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
+        " reaching the motors through the coupling (closed chains, cables)",
+    )
+    p.add_argument(
+        "--wn-fit",
+        choices=("adaptive", "batch"),
+        default="batch",
+        help="train the wavelet network by batch ridge least squares (default, as the"
+        " library) or by the paper's Lyapunov adaptation",
+    )
+    p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
+    p.set_defaults(run=_cmd_identify)
+
+    p = sub.add_parser("evaluate", help="reverse torque computation, relative RMS per joint")
+    p.add_argument("model")
+    p.add_argument("data", nargs="+")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_cmd_evaluate)
+
+    p = sub.add_parser("estimate", help="contact-force estimate for every sample")
+    p.add_argument("model")
+    p.add_argument("data")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(run=_cmd_estimate)
+
+    p = sub.add_parser(
+        "residual", help="find, trace and add what the model lacks; report before/after"
+    )
+    p.add_argument("data", nargs="+")
+    p.add_argument("--robot", default="omni")
+    p.add_argument(
+        "--friction",
+        choices=("cv", "coupled-cv", "model-cv"),
+        default="coupled-cv",
+        help="friction of the model the residual is taken from (model-cv: in model coordinates)",
+    )
+    p.add_argument(
+        "--offsets",
+        action="store_true",
+        help="fit a constant torque per joint with the friction (default: only without a body)",
+    )
+    p.add_argument(
+        "--effect-placement",
+        choices=("auto", "motor", "model", "either"),  # residual.EFFECT_PLACEMENTS
+        default="auto",
+        help="where a found effect acts: on its motor joint, at the model joint (through the"
+        " coupling), either (model joint if confirmed); auto: either with model-cv friction",
+    )
+    p.add_argument("--json", action="store_true")
+    p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
+    p.set_defaults(run=_cmd_residual)
+
+    p = sub.add_parser("report-robots", help="tables and plots of the real-robot datasets")
+    p.add_argument("-o", "--output", default="reports/robots", help="folder for the report")
+    p.add_argument("--datasets", help="datasets folder (default: <repo>/../shared/datasets)")
+    p.add_argument("--skip-residual", action="store_true", help="skip the slow MTM residual loop")
+    p.set_defaults(run=_cmd_report_robots)
+
+    p = sub.add_parser("demo", help="master, slave, service and dashboard over Zenoh on loopback")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="run S seconds once everything is up (default: until Ctrl-C)",
+    )
+    p.add_argument("--headless", action="store_true", help="do not start the dashboard")
+    p.add_argument(
+        "--port", type=int, default=8080, metavar="P", help="dashboard HTTP port (default 8080)"
+    )
+    p.add_argument(
+        "--zenoh-port",
+        type=int,
+        default=None,
+        metavar="P",
+        help="port of the Zenoh rendezvous endpoint on 127.0.0.1 (default: a free one)",
+    )
+    p.add_argument("--model", default=None, help="model JSON (default: the shipped omni_sim.json)")
+    p.add_argument("--record-dir", default="recordings", help="where the session is recorded")
+    p.add_argument(
+        "--summary-json", default=None, metavar="PATH", help="write the final summary as JSON"
+    )
+    p.add_argument(
+        "--motion",
+        choices=("palpation", "random"),
+        default="palpation",
+        help="what the simulated operator does with the master",
+    )
+    p.add_argument(
+        "--haptic-feedback", action="store_true", help="feed the estimated force back to the master"
+    )
+    p.add_argument(
+        "--contact-threshold",
+        type=float,
+        default=0.1,
+        metavar="N",
+        help="true force above which a sample counts as contact (default 0.1 N)",
+    )
+    p.set_defaults(run=_cmd_demo)
+
+    p = sub.add_parser("replay", help="publish a recorded session over Zenoh as if live")
+    p.add_argument("recording", help="session .mcap")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="time scale: 2 = twice as fast, 0 = as fast as possible (default 1)",
+    )
+    p.add_argument("--fast", action="store_true", help="as fast as possible (same as --speed 0)")
+    p.add_argument("--device", default=None, help="primary device (default: from the recording)")
+    p.add_argument(
+        "--with-service",
+        action="store_true",
+        help="run the force-estimation service in this process on the replayed stream",
+    )
+    p.add_argument(
+        "--model",
+        default=None,
+        help="model for --with-service (default: the recording's, else the shipped one)",
+    )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="PATH",
+        help="with --with-service: record the replayed stream and the new estimates",
+    )
+    p.add_argument(
+        "--wait-subscribers",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="wait up to S s for a subscriber of the joint states before starting",
+    )
+    p.add_argument("--no-wait", action="store_true", help="start at once")
+    p.add_argument("--json", action="store_true", help="print what was published as JSON")
+    add_zenoh_arguments(p)
+    p.set_defaults(run=_cmd_replay)
+
+    p = sub.add_parser("bench", help="performance figures of this machine, measured in one run")
+    from teleop_force.bench.main import add_bench_arguments
+
+    add_bench_arguments(p)
+    p.set_defaults(run=_cmd_bench)
+
+    p = sub.add_parser(
+        "experiments", help="reproduce the paper's experiments on the simulated Omni"
+    )
+    p.add_argument(
+        "-o", "--output", required=True, help="folder for report.md, report.json and figures"
+    )
+    p.add_argument(
+        "--duration", type=float, default=240.0, help="training session length [s] (paper: 240)"
+    )
+    p.add_argument("--test-duration", type=float, default=60.0, help="test session length [s]")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(run=_cmd_experiments)
+
+    p = sub.add_parser(
+        "residual-blind", help="blind tests of the residual loop on simulated effects"
+    )
+    p.add_argument("-o", "--output", required=True, help="folder for blind.md and blind.json")
+    p.add_argument("--duration", type=float, default=60.0, help="session length [s]")
+    p.set_defaults(run=_cmd_residual_blind)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args))
+    except TeleopForceError as exc:
+        _log(f"teleop-force {args.command}: {exc}")
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Contact-force estimation from a dynamic model: the streaming estimator and its kernels."""

@@ -1,0 +1,333 @@
+"""Foot force of the test stand from joint torques: free-phase identification, slider term.
+
+The leg hangs from a base that slides vertically on an unmeasured prismatic joint. A base
+accelerating upwards at ``a`` acts on the leg exactly like extra gravity, so the joint
+torques are::
+
+    tau = M(q) qdd + C(q, qd) qd + N(q) (1 + a / g) + tau_f(qd) + J(q)^T F
+
+with ``F`` the force of the foot on the ground. With the foot on the ground, the base moves
+with the foot's kinematics: ``z_base = -p_z(q) + const``, so ``a = d/dt v_z`` with
+``v_z = -J_z(q) qd`` (the *contact kinematics*). In the filtered (momentum) form of the
+project no acceleration is differentiated::
+
+    L(N(q) a) = D_L(N(q) v_z) - L(dN/dt v_z)
+
+and ``N(q) = Y_g(q) beta`` is linear in the base parameters, so the slider term is one more
+filtered regressor, added to the rigid-body one. When the foot is off the ground the same
+kinematics gives the base acceleration up to the foot's own small motion.
+
+Identification uses the samples without contact only (ATI force below a threshold, with a
+guard interval for the filters to forget the contact torques), adjusting the nominal (URDF)
+parameters by regularised least squares: the free phases are short, so the nominal values
+fill the directions they do not excite. The force is then
+``F = (J^T)^+ (L(tau) - tau_model_L)`` at every sample (the batch form of
+:class:`~teleop_force.estimation.estimator.ForceEstimator`, which has no slider term).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from teleop_force.errors import ConfigurationError, DataError, SingularityError
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
+from teleop_force.identification.lowpass import filtered_derivative_batch, lowpass_batch
+from teleop_force.identification.pipeline import prepare
+from teleop_force.identification.regressor import (
+    BaseParameters,
+    RigidBodyRegressor,
+    full_parameters,
+)
+from teleop_force.io.interchange_csv import Recording
+from teleop_force.robots.description import Robot, RobotDescription
+
+_DIRECTIONAL_STEP = 1e-5
+
+
+@dataclass(frozen=True)
+class TeststandOptions:
+    """How the test-stand force is identified and estimated.
+
+    Attributes:
+        filter: Filters (the data is 1 kHz and the contact force changes fast).
+        free_force_n: ATI force magnitude below which the foot is off the ground.
+        guard_s: Samples closer than this to a contact sample are not used to identify.
+        friction: ``cv`` or ``coupled-cv``.
+        prior_weight: Weight of the nominal parameters against the free-phase data, as a
+            fraction of the data's column norms (0: plain least squares).
+        slider: Whether the model carries the slider-acceleration term.
+
+    """
+
+    filter: FilterConfig = field(
+        default_factory=lambda: FilterConfig(
+            cutoff_hz=40.0, velocity_cutoff_hz=200.0, warmup_s=0.05
+        )
+    )
+    free_force_n: float = 1.0
+    guard_s: float = 0.02
+    friction: str = "cv"
+    prior_weight: float = 0.3
+    slider: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.free_force_n > 0:
+            raise ConfigurationError("free_force_n must be > 0")
+        if self.guard_s < 0:
+            raise ConfigurationError("guard_s must be >= 0")
+        if self.friction not in ("cv", "coupled-cv"):
+            raise ConfigurationError("test-stand friction must be cv or coupled-cv")
+        if self.prior_weight < 0:
+            raise ConfigurationError("prior_weight must be >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class TeststandModel:
+    """An identified test-stand model and what the slider term needs.
+
+    Attributes:
+        model: The project's model (rigid body, friction); the slider term is not part of it.
+        slider: Whether estimates add the slider-acceleration term.
+        free_samples: Number of samples identification used.
+
+    """
+
+    model: DynamicModel
+    slider: bool
+    free_samples: int
+
+
+def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -> np.ndarray:
+    """Return the samples whose ground-truth force is below ``free_force_n``, ``guard_s`` away."""
+    if recording.f_tip_in_base_n is None:
+        raise DataError("no ground-truth force to tell the free phases", path=recording.source)
+    contact = np.linalg.norm(recording.f_tip_in_base_n, axis=1) >= free_force_n
+    t = recording.t_s
+    contact_times = t[contact]
+    if contact_times.size == 0:
+        return np.ones(t.size, dtype=bool)
+    nearest = np.searchsorted(contact_times, t)
+    before = np.abs(t - contact_times[np.clip(nearest - 1, 0, contact_times.size - 1)])
+    after = np.abs(contact_times[np.clip(nearest, 0, contact_times.size - 1)] - t)
+    return ~contact & (np.minimum(before, after) > guard_s)
+
+
+def slider_regressor(
+    description: RobotDescription,
+    signals: FilteredSignals,
+    base: BaseParameters,
+    base_velocity_mps: np.ndarray | None = None,
+) -> np.ndarray:
+    """``L(Y_g(q) a / g)``, the filtered slider-term regressor ``(N, n, r)`` (see module doc).
+
+    The base's vertical velocity is ``base_velocity_mps`` when given (e.g. from the height
+    sensor), else the contact kinematics' ``-J_z(q) qd``.
+    """
+    regressor = RigidBodyRegressor(description)
+    robot = Robot(description)
+    cols = base.independent
+    g = float(np.linalg.norm(description.model.gravity.linear))  # type: ignore[union-attr]
+    q, qd = signals.q_rad, signals.qd_rad_s
+    n_samples, n = q.shape
+    zero = np.zeros(n)
+    momentum = np.empty((n_samples, n, cols.size))
+    drift = np.empty_like(momentum)
+    for k in range(n_samples):
+        if base_velocity_mps is None:
+            v_z = -(robot.tip_jacobian_in_base(q[k])[2] @ qd[k])
+        else:
+            v_z = float(base_velocity_mps[k])
+        y_g = regressor.coriolis_gravity(q[k], zero)[:, cols]
+        momentum[k] = y_g * v_z / g
+        speed = float(np.linalg.norm(qd[k]))
+        if speed > 0:
+            h = _DIRECTIONAL_STEP / speed
+            ahead = regressor.coriolis_gravity(q[k] + h * qd[k], zero)[:, cols]
+            behind = regressor.coriolis_gravity(q[k] - h * qd[k], zero)[:, cols]
+            drift[k] = (ahead - behind) / (2 * h) * v_z / g
+        else:
+            drift[k] = 0.0
+    cutoff = signals.config.cutoff_hz
+    return filtered_derivative_batch(momentum, signals.t_s, cutoff) - lowpass_batch(
+        drift, signals.t_s, cutoff
+    )
+
+
+def _friction(kind: str, description: RobotDescription) -> FrictionModel:
+    if kind == "cv":
+        return CoulombViscous(description.n_joints)
+    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+
+
+def _design(
+    description: RobotDescription,
+    recording: Recording,
+    options: TeststandOptions,
+    base: BaseParameters | None,
+    base_velocity_mps: np.ndarray | None = None,
+) -> tuple[FilteredSignals, BaseParameters, np.ndarray, np.ndarray, FrictionModel]:
+    prepared, base = prepare([recording], description, options.filter, base)
+    assert base is not None
+    signals = prepared[0].signals
+    rigid = signals.rigid_regressor
+    if options.slider:
+        rigid = rigid + slider_regressor(description, signals, base, base_velocity_mps)
+    friction = _friction(options.friction, description)
+    n = description.n_joints
+    p_f = int(sum(friction.parameter_counts()))
+    fric = np.zeros((signals.n_samples, n, p_f))
+    for j in range(n):
+        basis = lowpass_batch(
+            friction.basis(j, signals.qd_rad_s), signals.t_s, options.filter.cutoff_hz
+        )
+        fric[:, j, friction.joint_slice(j)] = basis
+    return signals, base, rigid, fric, friction
+
+
+def identify_teststand(
+    recording: Recording,
+    description: RobotDescription,
+    options: TeststandOptions | None = None,
+    base_velocity_mps: np.ndarray | None = None,
+) -> TeststandModel:
+    """Identify the leg on the samples without contact (see the module docstring).
+
+    ``base_velocity_mps``: the slider's vertical velocity for the slider term (default: the
+    contact kinematics, which off the ground holds only while the foot stays low).
+    """
+    options = options or TeststandOptions()
+    signals, base, rigid, fric, friction = _design(
+        description, recording, options, None, base_velocity_mps
+    )
+    free = free_phase_mask(recording, options.free_force_n, options.guard_s) & signals.valid
+    if int(free.sum()) < 10:
+        raise DataError(
+            f"only {int(free.sum())} samples without contact to identify from",
+            path=recording.source,
+        )
+    regressor = np.concatenate((rigid, fric), axis=2)[free]
+    torque = signals.tau_lowpassed_nm[free]
+    nominal = np.concatenate(
+        (base.project(full_parameters(description, np.zeros(0))), np.zeros(fric.shape[2]))
+    )
+    theta = _regularised_fit(regressor, torque, nominal, options.prior_weight)
+    r = base.count
+    friction.parameters = theta[r:].copy()
+    model = DynamicModel(
+        robot=description.name,
+        n_joints=description.n_joints,
+        filter_config=options.filter,
+        base=base,
+        base_values=theta[:r],
+        base_std=np.zeros(r),
+        friction=friction,
+        offsets_nm=np.zeros(description.n_joints),
+        notes={
+            "sources": [str(recording.source)],
+            "identified_on": f"{int(free.sum())} samples without contact",
+            "slider_term": options.slider,
+            "prior_weight": options.prior_weight,
+        },
+    )
+    return TeststandModel(model, options.slider, int(free.sum()))
+
+
+def nominal_teststand_model(
+    description: RobotDescription, options: TeststandOptions | None = None
+) -> TeststandModel:
+    """Return the URDF (nominal) rigid body without friction: the model before identification."""
+    options = options or TeststandOptions()
+    regressor = RigidBodyRegressor(description)
+    base = regressor.find_base_parameters()
+    values = base.project(full_parameters(description, np.zeros(0)))
+    friction = _friction(options.friction, description)
+    model = DynamicModel(
+        robot=description.name,
+        n_joints=description.n_joints,
+        filter_config=options.filter,
+        base=base,
+        base_values=values,
+        base_std=np.zeros(base.count),
+        friction=friction,
+        offsets_nm=np.zeros(description.n_joints),
+        notes={"nominal": "URDF inertias, no friction"},
+    )
+    return TeststandModel(model, options.slider, 0)
+
+
+def _regularised_fit(
+    regressor: np.ndarray, torque: np.ndarray, nominal: np.ndarray, weight: float
+) -> np.ndarray:
+    """Least squares pulled towards ``nominal`` (ridge on the column-scaled parameters)."""
+    n_params = regressor.shape[2]
+    a = regressor.reshape(-1, n_params)
+    b = torque.reshape(-1)
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0.0] = 1.0
+    a_scaled = a / scale
+    penalty = weight * np.eye(n_params)
+    lhs = np.vstack((a_scaled, penalty))
+    rhs = np.concatenate((b, penalty @ (nominal * scale)))
+    theta_scaled = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    return theta_scaled / scale
+
+
+def estimate_forces(
+    identified: TeststandModel,
+    recording: Recording,
+    description: RobotDescription,
+    with_friction: bool = True,
+    sigma_min: float = 5e-3,
+) -> np.ndarray:
+    """Force of the foot on the ground at every sample, base frame (N x 3, NaN if singular)."""
+    model = identified.model
+    options = TeststandOptions(
+        filter=model.filter_config, slider=identified.slider, friction=model.friction.kind
+    )
+    signals, _, rigid, fric, _ = _design(description, recording, options, model.base)
+    tau_model = np.einsum("kjp,p->kj", rigid, model.base_values)
+    if with_friction:
+        tau_model = tau_model + np.einsum("kjp,p->kj", fric, model.friction.parameters)
+    tau_external = signals.tau_lowpassed_nm - tau_model
+    robot = Robot(description)
+    forces = np.full((recording.n_samples, 3), np.nan)
+    for k in range(recording.n_samples):
+        try:
+            forces[k] = robot.tip_force_from_joint_torque(
+                recording.q_rad[k], tau_external[k], sigma_min
+            )
+        except SingularityError:
+            continue
+    return forces
+
+
+def identify_teststand_command(
+    recordings: list[Recording],
+    description: RobotDescription,
+    friction_kind: str,
+    output: str | os.PathLike[str],
+    log: Callable[[str], None],
+) -> int:
+    """``teleop-force identify --robot teststand``: identify on the free phases, save the model."""
+    if len(recordings) != 1:
+        raise ConfigurationError("the test stand is identified from one log folder at a time")
+    if friction_kind == "wn":
+        raise ConfigurationError(
+            "teststand: the phases without contact are too short (about 0.1 s) to train a "
+            "wavelet network; use --friction cv or coupled-cv"
+        )
+    identified = identify_teststand(
+        recordings[0], description, TeststandOptions(friction=friction_kind)
+    )
+    identified.model.save(Path(output))
+    log(f"identified on {identified.free_samples} samples without contact (|F| < 1 N)")
+    log(f"model written to {output}")
+    return 0

@@ -1,0 +1,35 @@
+"""The friction kinds a model file, ``identify`` and ``residual`` name, as one enum."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from teleop_force.errors import ConfigurationError
+
+
+class FrictionKind(StrEnum):
+    """A friction model family; the value is its name in model files, JSON and the CLI."""
+
+    #: Coulomb-viscous per joint, on the joint's own velocity.
+    CV = "cv"
+    #: Coulomb-viscous with the cross-joint terms of the robot's coupling (the Omni's cable).
+    COUPLED_CV = "coupled-cv"
+    #: Coulomb-viscous acting in model coordinates, through the robot's joint coupling.
+    MODEL_CV = "model-cv"
+    #: Wavelet network (the paper's method), with a coupled-CV fallback off its trained ground.
+    WN = "wn"
+
+    @classmethod
+    def parse(cls, value: str | FrictionKind, what: str = "friction") -> FrictionKind:
+        """Return the kind named ``value``; raise :class:`ConfigurationError` naming the choices."""
+        try:
+            return cls(value)
+        except ValueError:
+            choices = ", ".join(kind.value for kind in cls)
+            raise ConfigurationError(
+                f"unknown {what} {value!r}; expected one of {choices}"
+            ) from None
+
+
+#: Every friction kind's name, in the order the CLI lists them.
+FRICTION_KINDS: tuple[str, ...] = tuple(kind.value for kind in FrictionKind)

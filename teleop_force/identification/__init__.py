@@ -1,0 +1,1 @@
+"""From recordings to a dynamic model: regressors, filters, least squares, the pipeline."""

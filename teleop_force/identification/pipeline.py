@@ -1,0 +1,227 @@
+"""From recordings to a :class:`DynamicModel`, and back to figures.
+
+Identification runs in two stages, as in the paper: the rigid-body base parameters are fitted
+together with a Coulomb-viscous (or coupled) friction that absorbs friction "noise" (with the
+guards of :mod:`teleop_force.identification.rigid_body_fit`: zero-phase smoothed angles and nuisance
+low-speed friction terms, then the CV friction refitted on the causal signals with the rigid
+body fixed); a wavelet-network friction is then trained on what the rigid-body model leaves
+(the filtered friction torque), with the stage-one coupled CV kept as its off-ground fallback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from teleop_force.errors import ConfigurationError
+from teleop_force.friction import FRICTION_KINDS
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.model_coordinates import ModelCoordinateFriction
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.filtered_regressor import (
+    FilterConfig,
+    FilteredSignals,
+)
+from teleop_force.identification.least_squares import Identification, least_squares, relative_rms
+from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.identification.prepared import PreparedRecording, WaveletOptions, prepare
+from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
+from teleop_force.identification.rigid_body_fit import RigidBodyFitOptions, fit_rigid_body
+from teleop_force.io.interchange_csv import Recording
+from teleop_force.robots.description import RobotDescription
+
+
+@dataclass(frozen=True, eq=False)
+class FitReport:
+    """What identification produced besides the model.
+
+    ``rigid`` is the rigid-body fit (base parameters first); ``stage_one`` the fit of the
+    stage-one CV friction (and offsets) with the rigid body fixed, None when both were fitted
+    together (no rigid body, or :meth:`RigidBodyFitOptions.plain`).
+    """
+
+    rigid: Identification
+    friction_relative_rms: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
+    stage_one: Identification | None = None
+
+
+def stage_one_friction(friction_kind: str, description: RobotDescription) -> FrictionModel:
+    """Return the friction fitted with the rigid body.
+
+    CV (``cv``), friction in model coordinates through the description's coupling
+    (``model-cv``), or else the coupled CV.
+    """
+    if friction_kind == "cv":
+        return CoulombViscous(description.n_joints)
+    if friction_kind == ModelCoordinateFriction.kind:
+        return ModelCoordinateFriction(description.coupling)
+    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+
+
+def _friction_regressor(friction: FrictionModel, signals: FilteredSignals) -> np.ndarray:
+    """Return the filtered friction regressor ``(N, n, p_f)`` of a recording."""
+    raw = friction.regressor(signals.qd_rad_s)
+    flat = lowpass_batch(raw.reshape(raw.shape[0], -1), signals.t_s, signals.config.cutoff_hz)
+    return flat.reshape(raw.shape)
+
+
+def _stack_regressor(
+    prepared: Sequence[PreparedRecording], friction: FrictionModel, with_offsets: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint regressor ``(N, n, r + p_f [+ n])`` and filtered torque over the valid samples."""
+    blocks, torques = [], []
+    n = friction.n_joints
+    for item in prepared:
+        s = item.signals
+        rigid = s.rigid_regressor[s.valid]
+        fric = _friction_regressor(friction, s)[s.valid]
+        m = int(s.valid.sum())
+        parts = [rigid, fric]
+        if with_offsets:
+            parts.append(np.broadcast_to(np.eye(n), (m, n, n)))
+        blocks.append(np.concatenate(parts, axis=2))
+        torques.append(s.tau_lowpassed_nm[s.valid])
+    return np.concatenate(blocks), np.concatenate(torques)
+
+
+def identify_model(
+    recordings: Sequence[Recording],
+    description: RobotDescription,
+    friction_kind: str = "wn",
+    config: FilterConfig | None = None,
+    wavelet: WaveletOptions | None = None,
+    rigid_body: RigidBodyFitOptions | None = None,
+    offsets: bool | None = None,
+) -> tuple[DynamicModel, FitReport]:
+    """Identify rigid-body parameters and friction from recordings.
+
+    ``offsets``: fit a constant torque per joint with the friction (the data authors'
+    Coulomb + viscous + offset); None fits them only without rigid-body terms.
+    """
+    if friction_kind not in FRICTION_KINDS:
+        raise ConfigurationError(
+            f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}"
+        )
+    config = config or FilterConfig()
+    rigid_body = rigid_body or RigidBodyFitOptions()
+    prepared, base = prepare(recordings, description, config)
+    stage_one = stage_one_friction(friction_kind, description)
+    with_offsets = not description.has_rigid_body if offsets is None else offsets
+    regressor, torque = _stack_regressor(prepared, stage_one, with_offsets)
+    names = list(base.names() if base is not None else [])
+    names += stage_one.all_parameter_names()
+    if with_offsets:
+        names += [f"offset_{j + 1}" for j in range(description.n_joints)]
+    r = 0 if base is None else base.count
+    p_f = stage_one.parameters.size
+    stage_one_fit: Identification | None = None
+    if base is not None and rigid_body != RigidBodyFitOptions.plain():
+        rigid = fit_rigid_body(
+            recordings, description, base, stage_one, config, rigid_body, with_offsets
+        )
+        rigid_fit = rigid.identification
+        base_values, base_std = rigid.base_values.copy(), rigid.base_std.copy()
+        friction_torque = torque - np.einsum("kjp,p->kj", regressor[:, :, :r], base_values)
+        stage_one_fit = least_squares(regressor[:, :, r:], friction_torque, names[r:])
+        friction_values = stage_one_fit.parameters
+    else:
+        rigid_fit = least_squares(regressor, torque, names)
+        base_values = rigid_fit.parameters[:r]
+        base_std = rigid_fit.standard_deviations[:r]
+        friction_values = rigid_fit.parameters[r:]
+    stage_one.parameters = friction_values[:p_f].copy()
+    offsets_nm = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
+    details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
+    friction: FrictionModel = stage_one
+    if friction_kind == "wn":
+        from teleop_force.identification.wavelet_training import train_wavelet_network
+
+        if not isinstance(stage_one, CoupledCoulombViscous):
+            raise ConfigurationError("the wavelet network's fallback must be a coupled CV model")
+        friction, wn_details = train_wavelet_network(
+            prepared,
+            description,
+            base_values,
+            offsets_nm,
+            stage_one,
+            wavelet or WaveletOptions(),
+            typical_inertia(prepared, description, base, base_values),
+        )
+        details.update(wn_details)
+    model = DynamicModel(
+        robot=description.name,
+        n_joints=description.n_joints,
+        filter_config=config,
+        base=base,
+        base_values=base_values,
+        base_std=base_std,
+        friction=friction,
+        offsets_nm=np.asarray(offsets_nm, dtype=float),
+        notes={
+            "sources": [str(p.recording.source) for p in prepared],
+            "training_relative_rms": rigid_fit.relative_rms.tolist(),
+            "condition_number": rigid_fit.condition_number,
+        },
+    )
+    training = evaluate_prepared(model, prepared)
+    return model, FitReport(rigid_fit, training["relative_rms"], details, stage_one_fit)
+
+
+def typical_inertia(
+    prepared: Sequence[PreparedRecording],
+    description: RobotDescription,
+    base: BaseParameters | None,
+    base_values: np.ndarray,
+) -> np.ndarray | None:
+    """Diagonal of the identified ``M(q)`` at the median pose of the data (None without one)."""
+    if base is None or not description.has_rigid_body:
+        return None
+    q_median = np.median(np.concatenate([p.signals.q_rad for p in prepared]), axis=0)
+    regressor = RigidBodyRegressor(description)
+    n = description.n_joints
+    diag = np.array(
+        [
+            regressor.momentum(q_median, np.eye(n)[j])[j, base.independent] @ base_values
+            for j in range(n)
+        ]
+    )
+    return np.clip(diag, 1e-6, None)
+
+
+def evaluate_prepared(
+    model: DynamicModel, prepared: Sequence[PreparedRecording], blend: bool = True
+) -> dict[str, Any]:
+    """Relative RMS per joint of the reverse torque computation, adaptation off.
+
+    ``blend=False`` evaluates a wavelet network alone, without falling back to its coupled
+    CV off the trained ground (the paper's pure WN).
+    """
+    measured, estimated, qd = [], [], []
+    for item in prepared:
+        s = item.signals
+        tau_hat = model.predict_filtered_torque(s, item.recording.tau_nm, blend=blend)
+        measured.append(s.tau_lowpassed_nm[s.valid])
+        estimated.append(tau_hat[s.valid])
+        qd.append(s.qd_rad_s[s.valid])
+    m, e, v = np.concatenate(measured), np.concatenate(estimated), np.concatenate(qd)
+    coverage = model.friction.coverage_weight(v)
+    return {
+        "relative_rms": relative_rms(m, e),
+        "samples": int(m.shape[0]),
+        "coverage": (coverage >= 0.5).mean(axis=0),
+        "measured": m,
+        "estimated": e,
+    }
+
+
+def evaluate_model(
+    model: DynamicModel, recordings: Sequence[Recording], blend: bool = True
+) -> dict[str, Any]:
+    """Evaluate ``model`` on recordings (the ``evaluate`` command)."""
+    prepared, _ = prepare(recordings, model.description(), model.filter_config, model.base)
+    return evaluate_prepared(model, prepared, blend)

@@ -1,0 +1,1 @@
+"""Recordings: the interchange CSV, MCAP sessions, native robot logs, replay."""

@@ -1,0 +1,1 @@
+"""Lifetime and memory of the long-running processes (stop signals, malloc trimming)."""

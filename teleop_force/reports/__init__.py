@@ -1,0 +1,1 @@
+"""Reports regenerated from data: the paper's experiments, the robots, the blind tests."""

@@ -1,0 +1,1 @@
+"""Robot descriptions (built-in and from files), kinematics, and the Device interface."""

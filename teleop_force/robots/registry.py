@@ -1,0 +1,53 @@
+"""Robot descriptions by name: built-in robots and description files."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teleop_force.errors import ModelError
+from teleop_force.robots.description import RobotDescription
+from teleop_force.robots.omni import omni_description
+
+BUILTIN_ROBOTS = ("none", "omni", "dvrk-mtm", "teststand")
+
+
+def friction_only_description(n_joints: int) -> RobotDescription:
+    """Return a robot without rigid-body terms: friction and found effects only (``none``)."""
+    return RobotDescription(
+        name="none",
+        model=None,
+        n_joints=n_joints,
+        coupling=np.eye(n_joints),
+        tip_frame=None,
+        rotor_inertia_kgm2=np.zeros(n_joints),
+    )
+
+
+def resolve_robot(name: str, n_joints: int | None = None) -> RobotDescription:
+    """Return the description called ``name``: a built-in robot or a ``.json``/``.toml`` file.
+
+    ``none`` needs ``n_joints``; a description file's path is resolved from the current
+    folder (the description then carries its absolute path as its name).
+    """
+    if name == "omni":
+        return omni_description()
+    if name == "none":
+        if n_joints is None:
+            raise ModelError("robot 'none' needs the number of joints")
+        return friction_only_description(n_joints)
+    if name == "dvrk-mtm":
+        from teleop_force.robots.dvrk_mtm import dvrk_mtm_description
+
+        return dvrk_mtm_description()
+    if name == "teststand":
+        from teleop_force.robots.teststand import teststand_description
+
+        return teststand_description()
+    from teleop_force.robots.file import load_robot_description, looks_like_robot_file
+
+    if looks_like_robot_file(name):
+        return load_robot_description(name)
+    raise ModelError(
+        f"unknown robot {name!r}; built-in robots: {', '.join(BUILTIN_ROBOTS)}, "
+        "or a robot description file (.json or .toml)"
+    )

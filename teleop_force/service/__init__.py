@@ -1,0 +1,1 @@
+"""The force-estimation service: joint states in, force estimates out, over Zenoh."""

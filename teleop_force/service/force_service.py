@@ -1,0 +1,859 @@
+"""The slave-side force-estimation service: joint states in, force estimates out, over Zenoh.
+
+For one device (``--device``, the slave)::
+
+    subscribes  omni/<device>/measured_js     JointState: q and effort = commanded torque
+    publishes   omni/<device>/estimated_cf    ForceEstimate, one per joint state
+    queryable   omni/<device>/service/model   the model JSON (DynamicModel.to_dict());
+                                              {"load": "/abs/model.json"}: run that model
+    queryable   omni/<device>/service/control {"record": "start", "path": "/abs/x.mcap"},
+                                              {"record": "stop"}
+    queryable   omni/<device>/service/stats   JSON statistics (below)
+    subscribes  omni/<device>/service/adapt   "on" / "off": online WN adaptation
+    token       omni/<device>/alive/service
+
+Each joint state is run through :class:`~teleop_force.estimation.estimator.ForceEstimator`
+(streaming,
+no accelerations) with the time ``t = (t_ns - t0_ns) * 1e-9`` counted in integer nanoseconds
+from the first sample of the stream, so the same stream gives the same floats whenever it is
+played (a replay shifted in time included). A stream restarts, and the estimator with it,
+when its ``seq`` goes backwards or jumps far, or its stamp goes backwards or pauses > 0.5 s.
+The estimate's ``source_seq`` is the joint state's ``seq`` and its ``t_ns`` the time it was
+published, so ``t_ns - (joint state t_ns)`` is the slave -> estimate latency.
+
+Statistics (``service/stats``): joint states received / lost (sequence gaps) / restarts /
+duplicates, malformed messages dropped (by key), estimates published, singular, errors,
+latency p50/p99/max [ms] (joint-state stamp -> estimate publish), processing time, rates, the
+fraction of estimates on trained ground, the model running (``model.path``), adaptation
+state, recording (``recording``: the open one or ``null``; ``last_recording``), controls,
+memory (``memory``: resident size and the trims of
+:class:`~teleop_force.process.memory.MemoryTrimmer`).
+
+Bad input never stops the service: a malformed or wrong-version payload, a joint state with a
+value beyond :data:`MAX_ABS_JOINT_VALUE` or of the wrong joint count is counted under
+``malformed`` and dropped; an estimate that cannot be computed (non-finite result) is counted
+under ``estimates.errors`` and the estimator restarts its stream at the next joint state, so
+one bad sample cannot poison the filters for good.
+
+Run-time controls (``service/model`` with a payload, ``service/control``; see
+:mod:`teleop_force.service.controls` for the folder checks) are served by one thread of their
+own, never on a Zenoh receive thread: a model is read and checked off the estimator's lock,
+then swapped in between two samples (the new estimator starts a fresh stream); a recording
+started at run time records what ``--record`` would, into a new file.
+
+Recording (``--record PATH``): every joint state (of every device), setpoint, true contact
+force and status received, and every estimate published, to an MCAP session
+(:class:`~teleop_force.io.mcap_session.SessionWriter`) whose channels are the Zenoh keys, with
+metadata ``primary_device=<device>``.
+
+Run: ``python -m teleop_force.service.force_service --device slave --connect tcp/127.0.0.1:7447``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import queue
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import zenoh
+
+from teleop_force.errors import (
+    ConfigurationError,
+    DataError,
+    MessageError,
+    ModelFileError,
+    TeleopForceError,
+)
+from teleop_force.estimation.estimator import ForceEstimator
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.io.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
+from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.process.lifetime import (
+    StopSignal,
+    log,
+    use_realtime_switch_interval,
+    write_json,
+)
+from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.service.adaptation import OnlineAdaptation, adaptation_unavailable_reason
+from teleop_force.service.controls import (
+    ControlError,
+    create_exclusively,
+    model_folders,
+    parse_request,
+    read_model_file,
+    record_folders,
+)
+from teleop_force.service.recorder import BackgroundRecorder
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import (
+    declare_data_publisher,
+    declare_json_queryable,
+    declare_queryable,
+    declare_subscriber,
+    declare_token,
+    put,
+    reply_json,
+    undeclare_all,
+)
+from teleop_force.transport.session import open_session, options_from_args
+from teleop_force.transport.stream_stats import LatencyHistogram, RateMeter, SequenceTracker
+
+ROLE: Final = "service"
+SEQ_MASK: Final = 0xFFFF_FFFF
+#: A pause longer than this in the joint-state stamps starts a new stream [ns].
+MAX_STREAM_PAUSE_NS: Final = 500_000_000
+#: Joint states queued for estimation at most (10 min at 1 kHz); beyond, they are dropped.
+MAX_BACKLOG: Final = 600_000
+#: On close, the queued joint states are still estimated for at most this long [s].
+DRAIN_TIMEOUT_S: Final = 10.0
+#: Kinds recorded besides the device's own joint states and estimates.
+_RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
+#: A joint-state value (rad, rad/s, N m) beyond this is implausible: counted as malformed.
+MAX_ABS_JOINT_VALUE: Final = 1e6
+#: Keys counted apart in ``malformed.by_key`` at most; further keys are counted together.
+MAX_COUNTED_KEYS: Final = 64
+OTHER_KEYS: Final = "(other keys)"
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Settings of :class:`ForceService`.
+
+    Attributes:
+        device: Device whose joint states are estimated on.
+        master: Device id of the master (recorded in the metadata only).
+        record_path: MCAP session to record to (``None``: no recording).
+        adapt: Start with online adaptation on (needs a WN friction).
+        source: ``live`` or ``replay`` (recorded in the metadata).
+        models_dirs: Folders models may be loaded from on request, besides ``recordings/``
+            and ``teleop_force/models/``.
+        record_dirs: Folders recordings may be started in on request, besides ``recordings/``.
+        record_flush_s: A recording's chunk is handed to the OS at least this often [s].
+
+    """
+
+    device: str = "slave"
+    master: str | None = "master"
+    record_path: Path | None = None
+    adapt: bool = False
+    source: str = "live"
+    models_dirs: tuple[Path, ...] = ()
+    record_dirs: tuple[Path, ...] = ()
+    record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
+
+    def __post_init__(self) -> None:
+        """Validate the device ids and the recording settings."""
+        keys.validate_chunk(self.device)
+        if self.master is not None:
+            keys.validate_chunk(self.master, "master device id")
+        if self.record_path is not None:
+            object.__setattr__(self, "record_path", Path(self.record_path))
+        if self.source not in ("live", "replay"):
+            raise ConfigurationError(f"source must be live or replay, got {self.source!r}")
+        object.__setattr__(self, "models_dirs", tuple(Path(d) for d in self.models_dirs))
+        object.__setattr__(self, "record_dirs", tuple(Path(d) for d in self.record_dirs))
+        if not (math.isfinite(self.record_flush_s) and self.record_flush_s > 0.0):
+            raise ConfigurationError(f"record_flush_s must be > 0, got {self.record_flush_s}")
+
+
+class ForceService:
+    """Streaming force estimation of one device on a Zenoh session (module docstring)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        model: DynamicModel,
+        config: ServiceConfig | None = None,
+        *,
+        model_path: Path | None = None,
+        memory: MemoryTrimmer | None = None,
+    ) -> None:
+        """Prepare the estimator (and the recording file); call :meth:`start` to go live.
+
+        ``memory``: the process's trimmer (started and stopped by its owner, the service
+        process), reported under ``memory`` in the statistics.
+        """
+        self.session = session
+        self.model = model
+        self.config = config if config is not None else ServiceConfig()
+        self.model_path = model_path
+        self.estimator = ForceEstimator(model)
+        self.n_joints = model.n_joints
+        self._lock = threading.Lock()
+        self._closed = False
+        self._entities: list[Any] = []
+        self._publisher: zenoh.Publisher | None = None
+        self._inbox: queue.SimpleQueue[tuple[bytes, int] | None] = queue.SimpleQueue()
+        self._worker: threading.Thread | None = None
+        self.overflow = 0
+        self._own_js_key = keys.measured_js(self.config.device)
+        self._estimate_key = keys.estimated_cf(self.config.device)
+        self._t0_ns: int | None = None
+        self._last_t_ns: int | None = None
+        self._seq = 0
+        self._started_s = time.perf_counter()
+        self.seqs = SequenceTracker()
+        self.latency = LatencyHistogram()
+        self.processing = LatencyHistogram()
+        self.rate = RateMeter()
+        self.published = 0
+        self.singular = 0
+        self.estimate_errors = 0
+        self.last_error = ""
+        self.malformed_by_key: dict[str, int] = {}
+        self.last_malformed = ""
+        self.on_ground_all = 0
+        self.on_ground_joint = np.zeros(self.n_joints, dtype=np.int64)
+        self.stream_restarts = 0
+        self.last_estimate: m.ForceEstimate | None = None
+        self.adaptation: OnlineAdaptation | None = None
+        self.adapting = False
+        self.adaptation_note = adaptation_unavailable_reason(self.estimator) or ""
+        self.recorder: BackgroundRecorder | None = None
+        self.last_recording: dict[str, Any] | None = None
+        self._record_entities: list[Any] = []
+        self.allowed_models = model_folders(self.config.models_dirs)
+        self.allowed_records = record_folders(self.config.record_dirs)
+        self._controls: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
+        self._control_thread: threading.Thread | None = None
+        self.model_loads = 0
+        self.control_requests = 0
+        self.control_refused = 0
+        self.last_refusal = ""
+        self._logged: set[str] = set()
+        self.memory = memory
+        if self.config.adapt:
+            self.set_adaptation(True)
+        if self.config.record_path is not None:
+            self.recorder = BackgroundRecorder(
+                self._open_writer(self.config.record_path), self._count_malformed
+            )
+
+    # -- lifetime -----------------------------------------------------------------------------
+
+    def _open_writer(self, path: Path) -> SessionWriter:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        metadata = {
+            "primary_device": self.config.device,
+            "source": self.config.source,
+            "robot": self.model.robot,
+            "friction": self.model.friction.kind,
+            "model": str(self.model_path) if self.model_path is not None else "",
+            "recorder": "teleop_force.service.force_service",
+        }
+        if self.config.master is not None:
+            metadata["master_device"] = self.config.master
+        return SessionWriter(path, metadata, flush_interval_s=self.config.record_flush_s)
+
+    def start(self) -> ForceService:
+        """Declare the publisher, subscribers, queryables and token; return self."""
+        device = self.config.device
+        session = self.session
+        self._publisher = declare_data_publisher(session, self._estimate_key)
+        self._worker = threading.Thread(target=self._work, name="estimator", daemon=True)
+        self._worker.start()
+        self._control_thread = threading.Thread(
+            target=self._serve_controls, name="controls", daemon=True
+        )
+        self._control_thread.start()
+        self._entities.append(declare_subscriber(session, self._own_js_key, self._on_own_js))
+        if self.recorder is not None:
+            self._subscribe_recorded()
+        self._entities.append(
+            declare_subscriber(session, keys.service_adapt(device), self._on_adapt)
+        )
+        for kind, key in (
+            ("model", keys.service_model(device)),
+            ("control", keys.service_control(device)),
+        ):
+            self._entities.append(declare_queryable(session, key, self._control_callback(kind)))
+        self._entities.append(
+            declare_json_queryable(session, keys.service_stats(device), self.stats)
+        )
+        self._entities.append(declare_token(session, keys.alive(device, ROLE)))
+        self._started_s = time.perf_counter()
+        return self
+
+    def close(self) -> None:
+        """Stop processing, undeclare everything, then close the recording (idempotent).
+
+        The inputs go first; the worker then estimates on what is still queued (for at most
+        ``DRAIN_TIMEOUT_S``), and only then is the publisher undeclared (a publisher must not be
+        undeclared while another thread publishes on it). The recorder writes what was queued
+        before it closes the file.
+        """
+        with self._lock:
+            already = self._closed
+            self._closed = True
+        entities, self._entities = self._entities, []
+        recorded, self._record_entities = self._record_entities, []
+        undeclare_all(*reversed(entities), *recorded)
+        if already:
+            return
+        if self._control_thread is not None:
+            self._controls.put(None)
+            self._control_thread.join(DRAIN_TIMEOUT_S)
+        if self._worker is not None:
+            self._inbox.put(None)
+            self._worker.join(DRAIN_TIMEOUT_S + 5.0)
+        undeclare_all(self._publisher)
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.close()
+            self.last_recording = recorder.stats()
+
+    def __enter__(self) -> ForceService:
+        """Start the service."""
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        """Close the service."""
+        self.close()
+
+    # -- callbacks ----------------------------------------------------------------------------
+
+    def _on_own_js(self, sample: zenoh.Sample) -> None:
+        """Queue the device's joint states for the estimator thread."""
+        arrival_ns = time.time_ns()
+        # Queued for the worker: this receive thread (and, through congestion control BLOCK,
+        # the slave publishing on it) never waits for the estimator.
+        if self._closed:
+            return
+        if self._inbox.qsize() >= MAX_BACKLOG:
+            self.overflow += 1
+            return
+        self._inbox.put((sample.payload.to_bytes(), arrival_ns))
+
+    def _on_recorded(self, sample: zenoh.Sample) -> None:
+        """Every other recorded key (the own joint states come through :meth:`_on_own_js`)."""
+        arrival_ns = time.time_ns()
+        key = str(sample.key_expr)
+        recorder = self.recorder
+        if key == self._own_js_key or recorder is None:
+            return
+        recorder.submit(key, sample.payload.to_bytes(), arrival_ns)  # decoded by its thread
+
+    def _subscribe_recorded(self) -> None:
+        for kind in _RECORDED_KINDS:
+            self._record_entities.append(
+                declare_subscriber(self.session, keys.any_device(kind), self._on_recorded)
+            )
+
+    def _count_malformed(self, key: str, exc: Exception) -> None:
+        with self._lock:
+            self._count_malformed_locked(key, exc)
+
+    def _count_malformed_locked(self, key: str, exc: Exception) -> None:
+        if key not in self.malformed_by_key and len(self.malformed_by_key) >= MAX_COUNTED_KEYS:
+            key = OTHER_KEYS  # a flood on ever new keys must not grow the table without end
+        self.malformed_by_key[key] = self.malformed_by_key.get(key, 0) + 1
+        self.last_malformed = f"{key}: {exc}"
+
+    def _work(self) -> None:
+        """Worker thread: estimate on the queued joint states, in arrival order."""
+        deadline: float | None = None
+        while True:
+            item = self._inbox.get()
+            if item is None:
+                return
+            if self._closed:
+                deadline = deadline or time.perf_counter() + DRAIN_TIMEOUT_S
+                if time.perf_counter() > deadline:
+                    continue  # draining took too long: the rest is dropped
+            try:
+                self._on_joint_state(self._own_js_key, *item)
+            except Exception as exc:  # nothing may stop the estimator thread
+                # TeleopForceError: e.g. the session went away under us; anything else is a bug,
+                # logged once per kind, and the next joint state is estimated on regardless.
+                with self._lock:
+                    self.estimate_errors += 1
+                    self.last_error = f"{type(exc).__name__}: {exc}"
+                    self._restart_stream_locked()
+                if not isinstance(exc, TeleopForceError):
+                    self._log_once(f"estimator: unexpected {type(exc).__name__}: {exc}")
+
+    def _on_joint_state(self, key: str, payload: bytes, arrival_ns: int) -> None:
+        try:
+            js = m.JointState.decode(payload)
+            if js.n_joints != self.n_joints:
+                raise MessageError(f"{js.n_joints} joints, the model has {self.n_joints}")
+            if not _plausible(js):
+                raise MessageError(f"a value is beyond +-{MAX_ABS_JOINT_VALUE:g} (seq {js.seq})")
+        except MessageError as exc:
+            self._count_malformed(key, exc)
+            return
+        with self._lock:
+            estimate = self._estimate_locked(js)
+        recorder = self.recorder  # read once: a control request may stop it meanwhile
+        if recorder is not None:  # written by the recorder's thread, off this one
+            recorder.submit(key, js, arrival_ns)
+            if estimate is not None:
+                recorder.submit(self._estimate_key, estimate, estimate.t_ns)
+
+    def _estimate_locked(self, js: m.JointState) -> m.ForceEstimate | None:
+        """Estimate on one joint state and publish; return the published message."""
+        started_s = time.perf_counter()
+        event = self.seqs.observe(js.seq)
+        if event.duplicate:
+            return None
+        self.rate.tick()
+        last = self._last_t_ns
+        if (
+            self._t0_ns is None
+            or event.restarted
+            or (last is not None and (js.t_ns <= last or js.t_ns - last > MAX_STREAM_PAUSE_NS))
+        ):
+            if self._t0_ns is not None:
+                self.stream_restarts += 1
+            self.estimator.reset()
+            if self.adaptation is not None:
+                self.adaptation.reset()
+            self._t0_ns = js.t_ns
+        self._last_t_ns = js.t_ns
+        t_s = (js.t_ns - self._t0_ns) * 1e-9
+        q = np.array(js.q_rad)
+        tau = np.array(js.effort_nm)
+        try:
+            estimate = self.estimator.update(t_s, q, tau)
+            if self.adapting and self.adaptation is not None:
+                self.adaptation.update(t_s, q, tau)
+            message = m.ForceEstimate(
+                self._seq,
+                time.time_ns(),
+                js.seq,
+                tuple(estimate.force_tip_in_base_n.tolist()),
+                tuple(estimate.tau_external_nm.tolist()),
+                tuple(estimate.on_trained_ground.tolist()),
+                tuple(estimate.coverage_weight.tolist()),
+                tuple(estimate.tau_motor_filtered_nm.tolist()),
+                tuple(estimate.tau_model_filtered_nm.tolist()),
+            )
+        except (DataError, MessageError, ArithmeticError) as exc:
+            # A non-finite result: the filter states may hold inf / NaN now, so the next joint
+            # state starts a fresh stream instead of failing forever.
+            self.estimate_errors += 1
+            self.last_error = str(exc)
+            self._restart_stream_locked()
+            return None
+        assert self._publisher is not None
+        put(self._publisher, message.encode())
+        self._seq = (self._seq + 1) & SEQ_MASK
+        self.published += 1
+        self.latency.add((time.time_ns() - js.t_ns) * 1e-9)
+        if estimate.singular:
+            self.singular += 1
+        flags = estimate.on_trained_ground
+        self.on_ground_joint += flags
+        if bool(np.all(flags)):
+            self.on_ground_all += 1
+        self.last_estimate = message
+        self.processing.add(time.perf_counter() - started_s)
+        return message
+
+    def _restart_stream_locked(self) -> None:
+        """Make the next joint state start a fresh stream (filters reset)."""
+        self._t0_ns = None
+
+    def _log_once(self, message: str) -> None:
+        if message not in self._logged and len(self._logged) < MAX_COUNTED_KEYS:
+            self._logged.add(message)
+            log(ROLE, message)
+
+    def _on_adapt(self, sample: zenoh.Sample) -> None:
+        """``service/adapt`` control: payload ``on`` or ``off``."""
+        try:
+            text = sample.payload.to_string().strip().lower()
+        except (UnicodeDecodeError, ValueError) as exc:
+            self._count_malformed(str(sample.key_expr), exc)
+            return
+        if text not in ("on", "off"):
+            self._count_malformed(
+                str(sample.key_expr), ValueError(f"expected on/off, got {text!r}")
+            )
+            return
+        try:
+            self.set_adaptation(text == "on")
+        except ConfigurationError as exc:
+            log(ROLE, f"adaptation not switched on: {exc}")
+
+    # -- run-time controls (own thread) -------------------------------------------------------
+
+    def _control_callback(self, kind: str) -> Any:
+        def on_query(query: zenoh.Query) -> None:
+            if self._closed:
+                query.drop()
+                return
+            self._controls.put((kind, query))
+
+        return on_query
+
+    def _serve_controls(self) -> None:
+        """Control thread: answer model / control queries one at a time, in arrival order."""
+        while True:
+            item = self._controls.get()
+            if item is None:
+                return
+            kind, query = item
+            key = (
+                keys.service_model(self.config.device)
+                if kind == "model"
+                else keys.service_control(self.config.device)
+            )
+            try:
+                reply_json(query, key, self._answer(kind, key, query))
+            finally:
+                query.drop()
+
+    def _answer(self, kind: str, key: str, query: zenoh.Query) -> Any:
+        """Return the reply to one control query (a refusal: ``{"ok": false, "error": ...}``)."""
+        payload = query.payload
+        try:
+            request = parse_request(None if payload is None else payload.to_bytes())
+        except ControlError as exc:
+            self._count_malformed(key, exc)
+            return self._refuse(str(exc))
+        if kind == "model" and request is None:
+            return self.model_dict()
+        with self._lock:
+            self.control_requests += 1
+        try:
+            if kind == "model":
+                return self._model_request(request or {})
+            return self._control_request(request or {})
+        except (ControlError, TeleopForceError, OSError) as exc:
+            return self._refuse(str(exc))
+        except Exception as exc:  # a bad request must not stop the control thread
+            self._log_once(f"control: unexpected {type(exc).__name__}: {exc}")
+            return self._refuse(f"internal error: {type(exc).__name__}: {exc}")
+
+    def _refuse(self, error: str) -> dict[str, Any]:
+        with self._lock:
+            self.control_refused += 1
+            self.last_refusal = error
+        log(ROLE, f"control request refused: {error}")
+        return {"ok": False, "error": error}
+
+    def _model_request(self, request: dict[str, Any]) -> dict[str, Any]:
+        if set(request) != {"load"}:
+            raise ControlError(f'expected {{"load": PATH}}, got keys {sorted(request)}')
+        path = self.load_model_file(request["load"])
+        return {"ok": True, "path": str(path), "friction": self.model.friction.kind}
+
+    def _control_request(self, request: dict[str, Any]) -> dict[str, Any]:
+        action = request.get("record")
+        if action == "start" and set(request) == {"record", "path"}:
+            path = self.start_recording(request["path"])
+            return {"ok": True, "path": str(path)}
+        if action == "stop" and set(request) == {"record"}:
+            final = self.stop_recording()
+            return {"ok": True, **final}
+        raise ControlError(
+            'expected {"record": "start", "path": PATH} or {"record": "stop"}, '
+            f"got {_json_preview(request)}"
+        )
+
+    def load_model_file(self, path_text: object) -> Path:
+        """Load a model from an allowed folder and run it from the next sample on.
+
+        The file is read, its estimator built and tried on a few samples outside the lock;
+        only the swap itself holds it. Raises ControlError (or a TeleopForceError of the file).
+        """
+        path = self.allowed_models.model_file(path_text)
+        try:
+            model = read_model_file(path)
+            if model.n_joints != self.n_joints:
+                raise ControlError(
+                    f"{path}: model has {model.n_joints} joints, the device has {self.n_joints}"
+                )
+            estimator = ForceEstimator(model)
+            _try_estimator(ForceEstimator(model), path)
+        except TeleopForceError:
+            raise
+        except _INCONSISTENT_MODEL_ERRORS as exc:
+            raise ControlError(f"{path}: inconsistent model: {type(exc).__name__}: {exc}") from None
+        note = adaptation_unavailable_reason(estimator) or ""
+        with self._lock:
+            adapting = self.adapting and not note
+            self.model, self.estimator, self.model_path = model, estimator, path
+            self.adaptation = OnlineAdaptation(estimator) if adapting else None
+            self.adapting = adapting
+            self.adaptation_note = note
+            self._restart_stream_locked()
+            self.model_loads += 1
+        log(ROLE, f"now estimating with {path} ({model.friction.kind})")
+        return path
+
+    def start_recording(self, path_text: object) -> Path:
+        """Start recording into a new file of an allowed folder; raise ControlError."""
+        if self.recorder is not None:
+            raise ControlError(f"already recording to {self.recorder.writer.path}; stop it first")
+        path = self.allowed_records.new_recording(path_text)
+        create_exclusively(path)
+        try:
+            recorder = BackgroundRecorder(self._open_writer(path), self._count_malformed)
+        except TeleopForceError:
+            _remove_quietly(path)
+            raise
+        with self._lock:
+            self.recorder = recorder
+        self._subscribe_recorded()
+        log(ROLE, f"recording to {path}")
+        return path
+
+    def stop_recording(self) -> dict[str, Any]:
+        """Stop the recording and close its file; return its final counters."""
+        recorder = self.recorder
+        if recorder is None:
+            raise ControlError("not recording")
+        entities, self._record_entities = self._record_entities, []
+        undeclare_all(*entities)
+        with self._lock:
+            self.recorder = None
+        recorder.close()
+        final = recorder.stats()
+        self.last_recording = final
+        log(ROLE, f"recording stopped: {final['path']} ({final['messages']} messages)")
+        return final
+
+    # -- control and reporting ----------------------------------------------------------------
+
+    def set_adaptation(self, on: bool) -> None:
+        """Switch online adaptation on or off; raise ConfigurationError if impossible."""
+        with self._lock:
+            if not on:
+                self.adapting = False
+                return
+            if self.adaptation is None:
+                self.adaptation = OnlineAdaptation(self.estimator)
+            self.adapting = True
+
+    def model_dict(self) -> dict[str, Any]:
+        """Return the model the estimator runs, as JSON (coefficients as adapted so far)."""
+        with self._lock:
+            return self.model.to_dict()
+
+    def stats(self) -> dict[str, Any]:
+        """JSON statistics of the service (module docstring)."""
+        with self._lock:
+            published = self.published
+            last = self.last_estimate
+            return {
+                "role": ROLE,
+                "device": self.config.device,
+                "model": {
+                    "path": str(self.model_path) if self.model_path is not None else None,
+                    "robot": self.model.robot,
+                    "friction": self.model.friction.kind,
+                    "loads": self.model_loads,
+                },
+                "uptime_s": round(time.perf_counter() - self._started_s, 3),
+                "joint_states": {
+                    **self.seqs.to_dict(),
+                    "stream_restarts": self.stream_restarts,
+                    "backlog": self._inbox.qsize(),
+                    "overflow_dropped": self.overflow,
+                    "rate_hz": round(self.rate.rate_hz, 2),
+                    "mean_rate_hz": round(self.rate.mean_rate_hz, 2),
+                },
+                "estimates": {
+                    "published": published,
+                    "singular": self.singular,
+                    "errors": self.estimate_errors,
+                    "last_error": self.last_error,
+                },
+                "malformed": {
+                    "dropped": sum(self.malformed_by_key.values()),
+                    "by_key": dict(self.malformed_by_key),
+                    "last": self.last_malformed,
+                },
+                "latency_ms": self.latency.summary_ms(),
+                "processing_ms": self.processing.summary_ms(),
+                "on_ground_fraction": _fraction(self.on_ground_all, published),
+                "on_ground_fraction_per_joint": [
+                    _fraction(int(c), published) for c in self.on_ground_joint
+                ],
+                "adaptation": {
+                    "enabled": self.adapting,
+                    "available": not self.adaptation_note,
+                    "note": self.adaptation_note,
+                    "samples": 0 if self.adaptation is None else self.adaptation.samples,
+                },
+                "recording": None if self.recorder is None else self.recorder.stats(),
+                "last_recording": self.last_recording,
+                "memory": None if self.memory is None else self.memory.stats(),
+                "controls": {
+                    "requests": self.control_requests,
+                    "refused": self.control_refused,
+                    "last_refusal": self.last_refusal,
+                },
+                "last_estimate": None
+                if last is None
+                else {
+                    "source_seq": last.source_seq,
+                    "f_n": [None if math.isnan(x) else x for x in last.f_n],
+                },
+            }
+
+
+def _fraction(count: int, total: int) -> float | None:
+    return None if total == 0 else round(count / total, 6)
+
+
+def _plausible(js: m.JointState) -> bool:
+    """Whether every value of ``js`` is within +-MAX_ABS_JOINT_VALUE (decode checked finite)."""
+    limit = MAX_ABS_JOINT_VALUE
+    return all(-limit <= x <= limit for x in (*js.q_rad, *js.qd_rad_s, *js.effort_nm))
+
+
+def _try_estimator(estimator: ForceEstimator, path: Path) -> None:
+    """Run a fresh estimator on a few samples at rest; raise ModelFileError if it misbehaves."""
+    description = estimator.model.description()
+    lo = np.asarray(description.q_min_rad, dtype=float)
+    hi = np.asarray(description.q_max_rad, dtype=float)
+    n = estimator.n
+    q = 0.5 * (lo + hi) if lo.shape == (n,) and hi.shape == (n,) else np.zeros(n)
+    tau = np.zeros(n)
+    for k in range(3):
+        result = estimator.update(k * 1e-3, q, tau)
+    if not (
+        np.all(np.isfinite(result.tau_model_filtered_nm))
+        and np.all(np.isfinite(result.tau_external_nm))
+    ):
+        raise ModelFileError("the model gives non-finite torques at rest", path=path)
+
+
+def _json_preview(value: Any, limit: int = 120) -> str:
+    """Return a short one-line JSON rendering of ``value`` for messages."""
+    text = json.dumps(value, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _remove_quietly(path: Path) -> None:
+    """Remove ``path`` if it exists, ignoring errors (clean-up after a failed start)."""
+    try:
+        os.unlink(path)
+    except OSError:
+        return
+
+
+#: What a model file the loader accepted may still raise when its estimator is built or run
+#: (fuzzing found each of these; see docs/reliability.md): reported as a bad model file.
+_INCONSISTENT_MODEL_ERRORS: Final = (ArithmeticError, LookupError, NameError, TypeError, ValueError)
+
+
+def load_model(path: Path | None) -> tuple[DynamicModel, Path]:
+    """Load ``path`` (default: the shipped model) and try it; raise ModelFileError."""
+    model_path = Path(path) if path is not None else DEFAULT_MODEL_PATH
+    try:
+        model = DynamicModel.load(model_path)
+        _try_estimator(ForceEstimator(model), model_path)
+    except TeleopForceError:
+        raise
+    except _INCONSISTENT_MODEL_ERRORS as exc:
+        raise ModelFileError(
+            f"inconsistent model: {type(exc).__name__}: {exc}", path=model_path
+        ) from None
+    return model, model_path
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``python -m teleop_force.service.force_service``."""
+    from teleop_force.transport.session import add_zenoh_arguments
+
+    parser = argparse.ArgumentParser(
+        prog="python -m teleop_force.service.force_service", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--device", default="slave", help="device to estimate on (default slave)")
+    parser.add_argument("--master", default="master", help="master device id (recording metadata)")
+    parser.add_argument(
+        "--model", type=Path, default=None, help=f"model JSON (default {DEFAULT_MODEL_PATH.name})"
+    )
+    parser.add_argument("--record", type=Path, default=None, metavar="PATH", help="record to MCAP")
+    parser.add_argument(
+        "--models-dir", type=Path, action="append", default=[], metavar="DIR",
+        help="extra folder models may be loaded from at run time (repeatable)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--record-dir", type=Path, action="append", default=[], metavar="DIR",
+        help="extra folder recordings may be started in at run time (repeatable)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--record-flush-s", type=float, default=DEFAULT_FLUSH_INTERVAL_S, metavar="S",
+        help="hand recorded chunks to the OS at least every S s "
+        f"(default {DEFAULT_FLUSH_INTERVAL_S:g})",
+    )  # fmt: skip
+    parser.add_argument("--adapt", action="store_true", help="start with online WN adaptation on")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
+    parser.add_argument(
+        "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
+    )
+    add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the service until SIGINT / SIGTERM or ``--duration``; return the exit status."""
+    args = build_parser().parse_args(argv)
+    stop = StopSignal().install().watch_supervisor()
+    use_realtime_switch_interval()
+    try:
+        if args.duration is not None and not args.duration > 0:
+            raise ConfigurationError(f"--duration must be > 0, got {args.duration}")
+        model, model_path = load_model(args.model)
+        config = ServiceConfig(
+            device=args.device,
+            master=args.master,
+            record_path=args.record,
+            adapt=args.adapt,
+            models_dirs=tuple(args.models_dir),
+            record_dirs=tuple(args.record_dir),
+            record_flush_s=args.record_flush_s,
+        )
+        session = open_session(options_from_args(args))
+    except TeleopForceError as exc:
+        log(ROLE, f"error: {exc}")
+        return 2
+    trimmer = MemoryTrimmer().start()  # a long-running process: RSS follows what is live
+    try:
+        service = ForceService(session, model, config, model_path=model_path, memory=trimmer)
+        try:
+            service.start()
+            log(
+                ROLE,
+                f"estimating on {config.device} with {model_path.name} ({model.friction.kind})",
+            )
+            stop.wait(args.duration)
+        finally:
+            service.close()
+        stats = service.stats()
+    except TeleopForceError as exc:
+        log(ROLE, f"error: {exc}")
+        return 2
+    finally:
+        trimmer.stop()
+        session.close()
+    if args.stats_json:
+        write_json(args.stats_json, stats)
+    js = stats["joint_states"]
+    log(
+        ROLE,
+        f"stopped: {js['received']} joint states, {js['lost']} lost, "
+        f"{stats['malformed']['dropped']} malformed, {stats['estimates']['published']} estimates",
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

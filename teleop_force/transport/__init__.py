@@ -1,0 +1,1 @@
+"""Zenoh transport: key expressions, wire messages, sessions, routers, stream statistics."""

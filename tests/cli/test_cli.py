@@ -1,0 +1,125 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from teleop_force.cli.main import main
+from teleop_force.io.interchange_csv import Recording, write_interchange_csv
+from teleop_force.simulation import rigid_body_protocol, teleoperation_protocol
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cli")
+    train = rigid_body_protocol(12.0, seed=2)
+    test = teleoperation_protocol(6.0, seed=3)
+    paths = []
+    for name, s in (("train.csv", train), ("test.csv", test)):
+        path = folder / name
+        write_interchange_csv(path, Recording(s.t_s, s.q_rad, s.tau_nm, s.f_tip_in_base_n))
+        paths.append(path)
+    return folder, paths[0], paths[1]
+
+
+def test_identify_then_evaluate_and_estimate(sessions, capsys) -> None:
+    folder, train, test = sessions
+    model = folder / "model.json"
+    assert main(["identify", str(train), "--friction", "coupled-cv", "-o", str(model)]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(model), str(test), "--json"]) == 0
+    out = capsys.readouterr().out
+    payload = json.loads(out)
+    assert len(payload["relative_rms"]) == 3
+    assert all(0.0 < r < 1.0 for r in payload["relative_rms"])
+    assert payload["samples"] > 1000
+    forces = folder / "forces.csv"
+    assert main(["estimate", str(model), str(test), "-o", str(forces)]) == 0
+    table = np.loadtxt(forces, delimiter=",", skiprows=1)
+    assert forces.read_text().splitlines()[0] == "t,f_x,f_y,f_z"
+    assert table.shape[1] == 4
+
+
+def test_identify_wn_is_the_default_and_round_trips(sessions, capsys) -> None:
+    folder, train, test = sessions
+    model = folder / "wn.json"
+    assert main(["identify", str(train), "-o", str(model)]) == 0
+    saved = json.loads(model.read_text())
+    assert saved["friction"]["kind"] == "wn"
+    capsys.readouterr()
+    assert main(["evaluate", str(model), str(test), "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["coverage"]) == 3
+
+
+BAD_FILES = {
+    "missing_column.csv": ("t,q1,q2,q3,tau1,tau2\n0,0,0,0,0,0\n", "tau3"),
+    "non_numeric.csv": ("t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,abc,0,0,0,0\n", "row 3"),
+    "nan.csv": ("t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,0,nan,0,0,0\n", "row 3"),
+    "time.csv": (
+        "t,q1,q2,q3,tau1,tau2,tau3\n0,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n",
+        "row 4",
+    ),
+    "empty.csv": ("", "empty"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_FILES))
+def test_bad_input_exits_2_with_one_clear_line(tmp_path: Path, capsys, name: str) -> None:
+    text, expected = BAD_FILES[name]
+    path = tmp_path / name
+    path.write_text(text)
+    assert main(["identify", str(path), "-o", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert str(path) in err[0]
+    assert expected.lower() in err[0].lower()
+    assert "Traceback" not in err[0]
+
+
+def test_bad_model_file_names_the_field(tmp_path: Path, sessions, capsys) -> None:
+    _, _, test = sessions
+    model = tmp_path / "broken.json"
+    model.write_text(
+        json.dumps({"format": "teleop-force-model", "version": 1, "robot": "omni", "n_joints": 3})
+    )
+    assert main(["evaluate", str(model), str(test)]) == 2
+    err = capsys.readouterr().err
+    assert "broken.json" in err and "filter" in err
+
+
+def test_console_script_reports_without_traceback(tmp_path: Path) -> None:
+    path = tmp_path / "x.csv"
+    path.write_text("t,q1\n")
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "teleop_force.cli.main",
+            "identify",
+            str(path),
+            "-o",
+            str(tmp_path / "m.json"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_residual_choices_are_the_libraries_own() -> None:
+    """The parser lists the choices as literals (it must not import the residual loop to
+    start); they must be the library's."""
+    from teleop_force.cli.main import build_parser
+    from teleop_force.residual.loop import EFFECT_PLACEMENTS, RESIDUAL_FRICTION_KINDS
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.choices and "residual" in a.choices)
+    residual = sub.choices["residual"]
+    choices = {a.dest: tuple(a.choices) for a in residual._actions if a.choices}
+    assert choices["effect_placement"] == EFFECT_PLACEMENTS
+    assert set(choices["friction"]) == set(RESIDUAL_FRICTION_KINDS) - {"wn"}

@@ -1,0 +1,190 @@
+"""The force-estimation service on a real (local) Zenoh session."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from teleop_force.errors import ConfigurationError
+from teleop_force.estimation.estimator import ForceEstimator
+from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.io.mcap_session import SessionReader
+from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.service.force_service import ForceService, ServiceConfig
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.session import ZenohOptions, open_session
+
+DEVICE = "svc-test"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return DynamicModel.load(DEFAULT_MODEL_PATH)
+
+
+@pytest.fixture
+def session():
+    s = open_session(
+        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
+    )
+    yield s
+    s.close()
+
+
+def joint_states(n=300, seq0=0, t0_ns=1_700_000_000_000_000_000):
+    t = np.arange(n) * 1e-3
+    q = np.column_stack(
+        [0.2 * np.sin(2 * t), 0.8 + 0.3 * np.sin(3 * t), 0.3 + 0.4 * np.cos(1.5 * t)]
+    )
+    q = np.round(q / 4e-4) * 4e-4
+    tau = np.column_stack(
+        [0.02 * np.sin(5 * t), 0.15 + 0.02 * np.cos(t), 0.05 + 0.01 * np.sin(7 * t)]
+    )
+    return [
+        m.JointState(seq0 + k, t0_ns + k * 1_000_000, q[k], np.zeros(3), tau[k]) for k in range(n)
+    ]
+
+
+def collect(session, key):
+    got = []
+    sub = session.declare_subscriber(key, lambda s: got.append(m.decode(s.payload.to_bytes())))
+    return got, sub
+
+
+def wait_until(predicate, timeout_s=10.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def test_estimates_equal_the_offline_estimator_and_stats_add_up(session, model, tmp_path):
+    record = tmp_path / "svc.mcap"
+    service = ForceService(session, model, ServiceConfig(device=DEVICE, record_path=record)).start()
+    got, sub = collect(session, keys.estimated_cf(DEVICE))
+    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    try:
+        stream = joint_states()
+        for js in stream[:100] + stream[102:]:  # two lost
+            pub.put(js.encode())
+        pub.put(b"garbage")
+        bad_version = bytearray(stream[0].encode())
+        bad_version[2] = 99
+        pub.put(bytes(bad_version))
+        pub.put(m.JointState(0, 0, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)).encode())  # 2 joints
+        wait_until(lambda: len(got) == 298)
+        stats = query_json(session, keys.service_stats(DEVICE))
+        served_model = query_json(session, keys.service_model(DEVICE))
+    finally:
+        sub.undeclare()
+        pub.undeclare()
+        service.close()
+    assert stats["joint_states"]["received"] == 298
+    assert stats["joint_states"]["lost"] == 2
+    assert stats["malformed"]["dropped"] == 3
+    assert stats["malformed"]["by_key"] == {keys.measured_js(DEVICE): 3}
+    assert stats["estimates"]["published"] == 298
+    assert stats["latency_ms"]["count"] == 298
+    assert 0.0 <= stats["on_ground_fraction"] <= 1.0
+    assert served_model == model.to_dict()
+    # Same floats as the estimator run offline on the same samples.
+    offline = ForceEstimator(DynamicModel.load(DEFAULT_MODEL_PATH))
+    t0 = stream[0].t_ns
+    for js, estimate in zip(stream[:100] + stream[102:], got, strict=True):
+        expected = offline.update((js.t_ns - t0) * 1e-9, np.array(js.q_rad), np.array(js.effort_nm))
+        assert estimate.source_seq == js.seq
+        assert estimate.f_n == tuple(expected.force_tip_in_base_n)
+        assert estimate.tau_ext_nm == tuple(expected.tau_external_nm)
+    # The recording has the joint states and the estimates, primary device in the metadata.
+    reader = SessionReader(record)
+    assert reader.metadata["primary_device"] == DEVICE
+    counts = reader.message_counts
+    assert counts[keys.measured_js(DEVICE)] == 298
+    assert counts[keys.estimated_cf(DEVICE)] == 298
+
+
+def test_a_stream_restart_resets_the_estimator(session, model):
+    service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
+    got, sub = collect(session, keys.estimated_cf(DEVICE))
+    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    try:
+        first = joint_states(50)
+        for js in first:
+            pub.put(js.encode())
+        # The same samples again, later (a replay): seq goes back -> new stream.
+        for js in joint_states(50, t0_ns=1_800_000_000_000_000_000):
+            pub.put(js.encode())
+        wait_until(lambda: len(got) == 100)
+        stats = service.stats()
+    finally:
+        sub.undeclare()
+        pub.undeclare()
+        service.close()
+    assert stats["joint_states"]["restarts"] == 1
+    assert stats["joint_states"]["stream_restarts"] == 1
+    assert stats["joint_states"]["lost"] == 0
+    for a, b in zip(got[:50], got[50:], strict=True):  # bit-identical after the reset
+        assert a.f_n == b.f_n or all(math.isnan(x) for x in a.f_n + b.f_n)
+        assert a.tau_model_filtered_nm == b.tau_model_filtered_nm
+
+
+def test_adaptation_is_refused_without_a_wavelet_network(session, model):
+    service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
+    try:
+        session.put(keys.service_adapt(DEVICE), "on")
+        time.sleep(0.05)
+        stats = service.stats()
+        with pytest.raises(ConfigurationError, match="coupled-cv"):
+            service.set_adaptation(True)
+    finally:
+        service.close()
+    assert stats["adaptation"]["enabled"] is False
+    assert stats["adaptation"]["available"] is False
+
+
+def test_adaptation_runs_on_a_wavelet_network_model(session, model):
+    network = WaveletNetwork(3, omni_wavelet_specs(), fallback=model.friction)
+    wn_model = DynamicModel(
+        model.robot, model.n_joints, model.filter_config, model.base, model.base_values,
+        model.base_std, network, model.offsets_nm,
+    )  # fmt: skip
+    service = ForceService(session, wn_model, ServiceConfig(device=DEVICE)).start()
+    got, sub = collect(session, keys.estimated_cf(DEVICE))
+    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    try:
+        before = network.parameters.copy()
+        session.put(keys.service_adapt(DEVICE), "on")
+        wait_until(lambda: service.adapting)
+        for js in joint_states(200):
+            pub.put(js.encode())
+        wait_until(lambda: len(got) == 200)
+        session.put(keys.service_adapt(DEVICE), "off")
+        wait_until(lambda: not service.adapting)
+        stats = service.stats()
+    finally:
+        sub.undeclare()
+        pub.undeclare()
+        service.close()
+    assert stats["adaptation"]["available"] is True
+    assert stats["adaptation"]["samples"] == 200
+    after = network.parameters
+    assert after.size != before.size or not np.array_equal(after, before)  # it learnt something
+
+
+def test_stats_report_the_process_memory_trimmer(session, model):
+    trimmer = MemoryTrimmer(period_s=0.05).start()
+    service = ForceService(session, model, ServiceConfig(device=DEVICE), memory=trimmer).start()
+    try:
+        wait_until(lambda: service.stats()["memory"]["trims"] >= 2)
+        memory = service.stats()["memory"]
+    finally:
+        service.close()
+        trimmer.stop()
+    assert memory["available"] and memory["period_s"] == 0.05
+    assert memory["rss_mb"] > 10.0 and memory["released_mb"] >= 0.0
+    assert ForceService(session, model, ServiceConfig(device=DEVICE)).stats()["memory"] is None
