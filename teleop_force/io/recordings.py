@@ -2,9 +2,9 @@
 
 Besides the project's own files (interchange ``.csv``, ``.mcap`` sessions), the native data of
 the built-in real robots are read directly: a headerless CSV of 21 numbers per row is a dVRK
-MTM trajectory (:func:`teleop_force.robots.dvrk_mtm.read_mtm_csv`), a folder of the test stand's
+MTM trajectory (:func:`teleop_force.io.dvrk_mtm_csv.read_mtm_csv`), a folder of the test stand's
 ``.dat`` logs is a test-stand recording
-(:func:`teleop_force.robots.teststand.read_teststand_folder`).
+(:func:`teleop_force.io.teststand_logs.read_teststand_folder`).
 The native formats are recognised by content; ``robot`` (the ``--robot`` of the command, or
 the robot a model was identified for) only checks that the data fits the robot.
 """
@@ -30,7 +30,8 @@ def read_recording_with_notes(
     if not path.exists():
         raise DataError("no such file", path=path)
     if path.is_dir():
-        from teleop_force.robots.teststand import NAME, is_teststand_folder, read_teststand_folder
+        from teleop_force.io.teststand_logs import is_teststand_folder, read_teststand_folder
+        from teleop_force.robots.teststand import NAME
 
         if not is_teststand_folder(path):
             raise DataError(
@@ -41,7 +42,8 @@ def read_recording_with_notes(
         return log.recording, (log.note(),)
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        from teleop_force.robots.dvrk_mtm import NAME, looks_like_mtm_csv, read_mtm_csv
+        from teleop_force.io.dvrk_mtm_csv import looks_like_mtm_csv, read_mtm_csv
+        from teleop_force.robots.dvrk_mtm import NAME
 
         if looks_like_mtm_csv(_first_line(path)):
             _check_robot(robot, NAME, path, "a native dVRK MTM file (no header, 21 columns)")

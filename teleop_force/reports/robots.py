@@ -82,7 +82,8 @@ def mtm_study(
         identify_model,
         prepare,
     )
-    from teleop_force.robots.dvrk_mtm import dvrk_mtm_description, read_mtm_csv
+    from teleop_force.io.dvrk_mtm_csv import read_mtm_csv
+    from teleop_force.robots.dvrk_mtm import dvrk_mtm_description
 
     train = read_mtm_csv(folder / "mtm_traj_one_results.csv")
     test = read_mtm_csv(folder / "mtm_traj_two_results.csv")
@@ -273,7 +274,8 @@ def teststand_study(folder: Path, out: Path, log: Callable[[str], None]) -> dict
     )
     from teleop_force.identification.dynamic_model import DynamicModel
     from teleop_force.identification.filtered_regressor import FilterConfig
-    from teleop_force.robots.teststand import read_teststand_folder, teststand_description
+    from teleop_force.io.teststand_logs import read_teststand_folder
+    from teleop_force.robots.teststand import teststand_description
 
     log_measured = read_teststand_folder(folder, "target")
     log(log_measured.note())

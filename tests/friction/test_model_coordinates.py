@@ -208,7 +208,7 @@ def test_every_bad_number_is_refused_or_gives_a_working_estimator(tmp_path: Path
 def test_shared_mtm_data_model_coordinates_lower_joints_2_and_3(tmp_path: Path):
     """Identified on trajectory one, evaluated on trajectory two (the held-out one)."""
     from teleop_force.identification.pipeline import evaluate_model, identify_model
-    from teleop_force.robots.dvrk_mtm import read_mtm_csv
+    from teleop_force.io.dvrk_mtm_csv import read_mtm_csv
 
     folder = require("dvrk_mtm")
     train = read_mtm_csv(folder / "mtm_traj_one_results.csv").recording

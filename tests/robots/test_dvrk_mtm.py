@@ -6,6 +6,7 @@ import pytest
 
 from teleop_force.errors import DataError
 from teleop_force.identification.regressor import RigidBodyRegressor, full_parameters
+from teleop_force.io.dvrk_mtm_csv import read_mtm_csv
 from teleop_force.io.recordings import read_recording, read_recording_with_notes
 from teleop_force.robots.description import Robot, _replace
 from teleop_force.robots.dvrk_mtm import (
@@ -17,7 +18,6 @@ from teleop_force.robots.dvrk_mtm import (
     _add_parallelogram,
     dvrk_mtm_description,
     mtm_coupling,
-    read_mtm_csv,
 )
 from tests.shared_data import require
 

@@ -8,7 +8,8 @@ from teleop_force.errors import DataError
 from teleop_force.estimation.teststand import free_phase_mask
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.io.recordings import read_recording_with_notes
-from teleop_force.robots.teststand import NATIVE_FILES, build_teststand_model, read_teststand_folder
+from teleop_force.io.teststand_logs import NATIVE_FILES, read_teststand_folder
+from teleop_force.robots.teststand import build_teststand_model
 from tests.shared_data import require
 
 
