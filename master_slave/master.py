@@ -133,7 +133,7 @@ class FeedbackInbox:
         """Zenoh callback: keep the newest estimate."""
         arrival_ns = time.time_ns()
         try:
-            estimate = m.ForceEstimate.decode(sample.payload.to_bytes())
+            estimate = m.ForceEstimateMessage.decode(sample.payload.to_bytes())
         except MessageError:
             with self._lock:
                 self.malformed += 1

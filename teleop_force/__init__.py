@@ -26,13 +26,13 @@ _LOCATIONS = {
     "ForceEstimator": "teleop_force.estimation.estimator",
     "FrictionModel": "teleop_force.friction",
     "Identification": "teleop_force.identification.least_squares",
-    "LowPass": "teleop_force.identification.lowpass",
+    "LowPass": "teleop_force.lowpass",
     "LyapunovAdapter": "teleop_force.friction.adaptation",
     "MessageError": "teleop_force.errors",
     "ModelError": "teleop_force.errors",
     "ModelFileError": "teleop_force.errors",
     "Recording": "teleop_force.io.interchange_csv",
-    "ResidualReport": "teleop_force.residual.loop",
+    "ResidualReport": "teleop_force.residual.report",
     "RigidBodyRegressor": "teleop_force.identification.regressor",
     "Robot": "teleop_force.robots.description",
     "RobotDescription": "teleop_force.robots.description",
@@ -78,7 +78,7 @@ if TYPE_CHECKING:
         least_squares,
         relative_rms,
     )
-    from teleop_force.identification.lowpass import LowPass
+    from teleop_force.lowpass import LowPass
     from teleop_force.identification.pipeline import evaluate_model, identify_model
     from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
     from teleop_force.io.interchange_csv import (
@@ -88,7 +88,8 @@ if TYPE_CHECKING:
     )
     from teleop_force.io.mcap_session import SessionReader, SessionWriter
     from teleop_force.io.recordings import read_recording
-    from teleop_force.residual.loop import ResidualReport, trace_residual
+    from teleop_force.residual.loop import trace_residual
+    from teleop_force.residual.report import ResidualReport
     from teleop_force.robots.description import Robot, RobotDescription
     from teleop_force.robots.device import Device
     from teleop_force.robots.omni import omni_description

@@ -37,6 +37,7 @@ from typing import Any
 from teleop_force.bench.measure import Stopwatch, stopwatch
 from teleop_force.friction import kernels
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
+from teleop_force.friction.kinds import FrictionKind
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.pipeline import (
@@ -115,7 +116,9 @@ def time_identification(
     recorded_s = samples * float(recordings[0].t_s[1] - recordings[0].t_s[0])
     log(f"identify: whole pipeline (batch WN) on {samples} samples")
     with stopwatch() as pipeline:
-        model, _ = identify_model(recordings, description, "wn", wavelet=WaveletOptions("batch"))
+        model, _ = identify_model(
+            recordings, description, FrictionKind.WN, wavelet=WaveletOptions("batch")
+        )
     log(f"  {pipeline.wall_s:.1f} s wall; the filtered-regressor stage alone")
     with stopwatch() as prepare_time:
         prepared, base = prepare(recordings, description, model.filter_config)

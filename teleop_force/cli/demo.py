@@ -290,7 +290,7 @@ class _Monitor:
 
     def _process(self, kind: str, payload: bytes) -> None:
         if kind == "estimate":
-            estimate = m.ForceEstimate.decode(payload)
+            estimate = m.ForceEstimateMessage.decode(payload)
             self.estimates.observe(estimate.seq)
             self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
         elif kind == "true":

@@ -42,18 +42,21 @@ def _load_recordings(
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
+    from teleop_force.friction.kinds import FrictionKind
     from teleop_force.identification.pipeline import WaveletOptions, identify_model
+    from teleop_force.robots.kinds import RobotKind
     from teleop_force.robots.registry import resolve_robot
 
     recordings = _load_recordings(args.data, robot=args.robot)
     n = recordings[0].q_rad.shape[1]
     description = resolve_robot(args.robot, n)
-    if description.name == "teststand":
+    friction = FrictionKind(args.friction)
+    if description.name == RobotKind.TESTSTAND:
         from teleop_force.estimation.teststand import identify_teststand_command
 
-        return identify_teststand_command(recordings, description, args.friction, args.output, _log)
+        return identify_teststand_command(recordings, description, friction, args.output, _log)
     model, report = identify_model(
-        recordings, description, args.friction, wavelet=WaveletOptions(method=args.wn_fit)
+        recordings, description, friction, wavelet=WaveletOptions(method=args.wn_fit)
     )
     model.save(args.output)
     _log(report.rigid.table())
@@ -112,16 +115,18 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
 
 
 def _cmd_residual(args: argparse.Namespace) -> int:
-    from teleop_force.residual.loop import ResidualOptions, trace_residual
+    from teleop_force.friction.kinds import FrictionKind
+    from teleop_force.residual.loop import trace_residual
+    from teleop_force.residual.options import EffectPlacement, ResidualOptions
     from teleop_force.residual.report import write_residual_report
     from teleop_force.robots.registry import resolve_robot
 
     recordings = _load_recordings(args.data, robot=args.robot)
     description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
     options = ResidualOptions(
-        friction=args.friction,
+        friction=FrictionKind(args.friction),
         offsets=True if args.offsets else None,
-        effect_placement=args.effect_placement,
+        effect_placement=EffectPlacement(args.effect_placement),
     )
     report = trace_residual(recordings, description, options)
     if args.output:
@@ -296,16 +301,24 @@ def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of ``teleop-force``."""
+    # The enums only (light modules): the commands import what they run when they run.
+    from teleop_force.friction.kinds import FrictionKind
+    from teleop_force.robots.kinds import RobotKind
+
     parser = argparse.ArgumentParser(prog="teleop-force", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("identify", help="identify rigid-body parameters and friction")
     p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
-    p.add_argument("--robot", default="omni", help="omni (default), none, or a description file")
+    p.add_argument(
+        "--robot",
+        default=RobotKind.OMNI.value,
+        help="omni (default), none, dvrk-mtm, teststand, or a description file",
+    )
     p.add_argument(
         "--friction",
-        choices=("cv", "coupled-cv", "model-cv", "wn"),
-        default="wn",
+        choices=[kind.value for kind in FrictionKind],
+        default=FrictionKind.WN.value,
         help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
         " reaching the motors through the coupling (closed chains, cables)",
     )
@@ -331,6 +344,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(run=_cmd_estimate)
 
+    # The light options module only (the enums): the loop itself is imported when it runs.
+    from teleop_force.friction.kinds import FrictionKind
+    from teleop_force.residual.options import COMMAND_LINE_FRICTION_KINDS, EffectPlacement
+
     p = sub.add_parser(
         "residual", help="find, trace and add what the model lacks; report before/after"
     )
@@ -338,8 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", default="omni")
     p.add_argument(
         "--friction",
-        choices=("cv", "coupled-cv", "model-cv"),
-        default="coupled-cv",
+        choices=[kind.value for kind in COMMAND_LINE_FRICTION_KINDS],
+        default=FrictionKind.COUPLED_CV.value,
         help="friction of the model the residual is taken from (model-cv: in model coordinates)",
     )
     p.add_argument(
@@ -349,8 +366,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--effect-placement",
-        choices=("auto", "motor", "model", "either"),  # residual.EFFECT_PLACEMENTS
-        default="auto",
+        choices=[placement.value for placement in EffectPlacement],
+        default=EffectPlacement.AUTO.value,
         help="where a found effect acts: on its motor joint, at the model joint (through the"
         " coupling), either (model joint if confirmed); auto: either with model-cv friction",
     )

@@ -19,33 +19,30 @@ of the same sample (as the batch does) and ``t`` as the time since the stream's 
 (the batch: since the recording's).
 
 Speed: one sample is three-vectors, where NumPy's per-call overhead (~1 µs) dwarfs the
-arithmetic. So the filters, the coupling ``T`` of motor and model coordinates, the friction
-fallback, coverage trust, found effects and the 3 x 3 ``J^-T`` run on Python floats
-(:mod:`teleop_force.estimation.kernels`); NumPy is used where arrays are long (the wavelet
-network, :meth:`~teleop_force.friction.wavelet_network.WaveletNetwork.torque_one`) and
-pinocchio for the rigid body (four calls). See BENCHMARKS.md for the figures.
+arithmetic. So the filters and the 3 x 3 ``J^-T`` run on Python floats, and the model's terms
+run compiled (numba, :mod:`teleop_force.estimation.kernels`): friction (Coulomb-viscous
+terms, or the wavelet network blended with its fallback by the coverage trust), offsets and
+found effects in one call per sample, with the single definitions the batch fit uses
+(:mod:`teleop_force.friction.terms`, :mod:`teleop_force.identification.effect_terms`); the
+coupling and the rigid-body terms around pinocchio's four calls in two more. See
+BENCHMARKS.md for the figures.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
 from teleop_force.errors import DataError, SingularityError
 from teleop_force.estimation.kernels import (
-    CoverageLookup,
-    FrictionKernel,
-    compile_linear_map,
-    effect_kernel,
-    linear_expression,
-    linear_friction_kernel,
+    ModelTerms,
+    linear_map_into,
+    rigid_terms_into,
+    spring_table,
 )
-from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.regressor import full_parameters
 from teleop_force.robots.description import Robot
@@ -56,7 +53,6 @@ DEFAULT_SIGMA_MIN = 5e-3
 TRAINED_GROUND_WEIGHT = 0.5
 _TWO_PI = 2.0 * math.pi
 _NAN3_LIST = [math.nan] * 3
-_UNSET = object()
 
 
 @dataclass(frozen=True)
@@ -86,75 +82,61 @@ class ForceEstimate:
     singular: bool
 
 
-def _compile_rigid_terms(
-    robot: Robot, spring_stiffness: np.ndarray
-) -> Callable[..., tuple[list[float], list[float]]]:
-    """``(q, qd, vm, M, C, g) -> (M qd, -C^T qd + N + tau_spring)`` in motor coordinates, unrolled.
-
-    ``vm = T qd`` and ``M``, ``C``, ``g`` are pinocchio's (model coordinates, upper triangle
-    of ``M``); the result is ``T^T M vm + rotor qd`` and ``T^T (g - C^T vm) + springs``.
-    """
-    n = robot.n
-    n_model = robot.model.nv  # > n for a closed chain written as a tree (T is n_model x n)
-    tt = robot.coupling.T
-    lines = ["def rigid_terms(q, qd, vm, M, C, g):"]
-    for i in range(n_model):
-        mass = " + ".join(f"M[{min(i, j)}][{max(i, j)}] * vm[{j}]" for j in range(n_model))
-        coriolis = " + ".join(f"C[{j}][{i}] * vm[{j}]" for j in range(n_model))
-        lines.append(f"    p{i} = {mass}")
-        lines.append(f"    w{i} = g[{i}] - ({coriolis})")
-    lines.append(f"    p = [{', '.join(f'p{i}' for i in range(n_model))}]")
-    lines.append(f"    w = [{', '.join(f'w{i}' for i in range(n_model))}]")
-    rotor = robot.description.rotor_inertia_kgm2
-    spring: list[list[str]] = [[] for _ in range(n)]
-    for s, k in zip(robot.description.springs, spring_stiffness, strict=True):
-        spring[s.joint].append(f"{float(k)!r} * (q[{s.joint}] - {float(s.rest_angle_rad)!r})")
-    momentum = [
-        f"{linear_expression(tt[i], 'p')} + {float(rotor[i])!r} * qd[{i}]" for i in range(n)
-    ]
-    other = [" + ".join([linear_expression(tt[i], "w"), *spring[i]]) for i in range(n)]
-    lines.append(f"    return [{', '.join(momentum)}], [{', '.join(other)}]")
-    namespace: dict[str, object] = {}
-    exec("\n".join(lines) + "\n", namespace)
-    return namespace["rigid_terms"]  # type: ignore[return-value]
-
-
 class _RigidBody:
-    """Momentum, ``-C^T qd + N + tau_spring`` and the tip Jacobian, on Python floats."""
+    """Momentum, ``-C^T qd + N + tau_spring`` and the tip Jacobian at one sample (compiled)."""
 
     def __init__(self, robot: Robot, spring_stiffness: np.ndarray) -> None:
         self.robot = robot
         self.model = robot.model
         self.data = robot.model.createData()
-        self.n = robot.n
-        self.to_model = compile_linear_map(robot.coupling)
-        self._terms = _compile_rigid_terms(robot, spring_stiffness)
-        # J_motor = J_model T: row r of the result is T^T applied to row r of J_model
-        self._jacobian_to_motor = compile_linear_map(robot.coupling.T)
+        self.n = n = robot.n
+        n_model = robot.model.nv  # > n for a closed chain written as a tree (T is n_model x n)
+        self.coupling = np.ascontiguousarray(robot.coupling, dtype=float)
+        self._identity = n_model == n and bool(np.array_equal(self.coupling, np.eye(n)))
+        self.rotor = np.ascontiguousarray(robot.description.rotor_inertia_kgm2, dtype=float)
+        springs = robot.description.springs
+        self.springs = spring_table(
+            [s.joint for s in springs], spring_stiffness, [s.rest_angle_rad for s in springs]
+        )
+        #: ``[q (n), qd (n), momentum (n), other (n)]``
+        self._state = np.zeros(4 * n)
+        self._out = slice(2 * n, 4 * n)
+        identity = self._identity
+        # pinocchio's angles and velocities in model coordinates (views of the state for T = I)
+        self._q_model = self._state[:n] if identity else np.zeros(n_model)
+        self._v_model = self._state[n : 2 * n] if identity else np.zeros(n_model)
+        self._q_motor = np.zeros(n)
+        self._q_jacobian = self._q_motor if identity else np.zeros(n_model)
         tip_frame = robot.description.tip_frame
         self.tip = None if tip_frame is None else robot.model.getFrameId(tip_frame)
-        self._q = np.zeros(robot.model.nv)
-        self._v = np.zeros(robot.model.nv)
 
     def terms(self, q: list[float], qd: list[float]) -> tuple[list[float], list[float]]:
         """``M(q) qd`` and ``-C(q, qd)^T qd + N(q) + tau_spring(q)`` in motor coordinates."""
-        model, data = self.model, self.data
-        vm = self.to_model(qd)
-        self._q[:] = self.to_model(q)
-        self._v[:] = vm
-        mass = pin.crba(model, data, self._q).tolist()  # upper triangle is valid
-        coriolis = pin.computeCoriolisMatrix(model, data, self._q, self._v).tolist()
-        gravity = pin.computeGeneralizedGravity(model, data, self._q).tolist()
-        return self._terms(q, qd, vm, mass, coriolis, gravity)
+        model, data, state, n = self.model, self.data, self._state, self.n
+        state[: 2 * n] = q + qd
+        q_model, v_model = self._q_model, self._v_model
+        if not self._identity:
+            linear_map_into(self.coupling, state[:n], q_model)
+            linear_map_into(self.coupling, state[n : 2 * n], v_model)
+        mass = pin.crba(model, data, q_model)  # upper triangle is valid
+        coriolis = pin.computeCoriolisMatrix(model, data, q_model, v_model)
+        gravity = pin.computeGeneralizedGravity(model, data, q_model)
+        rigid_terms_into(
+            state, v_model, mass, coriolis, gravity, self.coupling, self.rotor, self.springs
+        )
+        out = state[self._out].tolist()
+        return out[:n], out[n:]
 
     def jacobian(self, q: list[float]) -> list[list[float]]:
         """Return the translational tip Jacobian ``d p / d q_motor`` (3 x n) at angles ``q``."""
-        self._q[:] = self.to_model(q)
+        self._q_motor[:] = q
+        if not self._identity:
+            linear_map_into(self.coupling, self._q_motor, self._q_jacobian)
         j6 = pin.computeFrameJacobian(
-            self.model, self.data, self._q, self.tip, pin.LOCAL_WORLD_ALIGNED
-        ).tolist()
-        convert = self._jacobian_to_motor
-        return [convert(j6[0]), convert(j6[1]), convert(j6[2])]
+            self.model, self.data, self._q_jacobian, self.tip, pin.LOCAL_WORLD_ALIGNED
+        )
+        # J_motor = J_model T
+        return (j6[:3] if self._identity else j6[:3] @ self.coupling).tolist()
 
     def tip_force(self, q: list[float], tau_ext: list[float], sigma_min: float) -> list[float]:
         """``F`` with ``J^T F = tau_ext`` for three joints (raise SingularityError)."""
@@ -177,54 +159,6 @@ class _RigidBody:
             ((c * h - b * i) * t0 + (a * i - c * g) * t1 + (b * g - a * h) * t2) / det,
             ((b * f - c * e) * t0 + (c * d - a * f) * t1 + (a * e - b * d) * t2) / det,
         ]
-
-
-class _Friction:
-    """Friction torque and coverage weight of a model at one sample, on Python floats."""
-
-    def __init__(self, model: DynamicModel) -> None:
-        self.model = model
-        self.friction = model.friction
-        self.n = model.n_joints
-        self._ones = [1.0] * self.n
-        self._linear = linear_friction_kernel(self.friction)
-        self._network = self.friction if type(self.friction) is WaveletNetwork else None
-        self._fallback: object = _UNSET  # what the kernels below were built for
-        self._fallback_kernel: FrictionKernel | None = None
-        self._coverage: object = _UNSET
-        self._trust: Callable[[list[float]], list[float]] | None = None
-
-    def _refresh(self, network: WaveletNetwork) -> None:
-        """(Re)build the kernels of the network's fallback and coverage map."""
-        fallback = network.fallback
-        if fallback is None:
-            network.blended_torque(np.zeros((1, self.n)))  # raises the model error
-        assert fallback is not None
-        kernel = linear_friction_kernel(fallback)
-        if kernel is None:
-            kernel = lambda qd: fallback.torque(np.asarray([qd]))[0].tolist()  # noqa: E731
-        self._fallback, self._fallback_kernel = fallback, kernel
-        coverage = network.coverage
-        self._coverage = coverage
-        self._trust = None if coverage is None else CoverageLookup(coverage).trust
-
-    def __call__(self, qd: list[float]) -> tuple[list[float], list[float]]:
-        """``(friction torque, coverage weight)`` per joint at ``qd``."""
-        network = self._network
-        if network is not None:
-            if network.fallback is not self._fallback or network.coverage is not self._coverage:
-                self._refresh(network)
-            trust = self._trust
-            weight = self._ones if trust is None else trust(qd)
-            wn = network.torque_one(qd).tolist()
-            fb = self._fallback_kernel(qd)  # type: ignore[misc]
-            blended = [w * a + (1.0 - w) * b for w, a, b in zip(weight, wn, fb, strict=True)]
-            return blended, weight
-        if self._linear is not None:
-            return self._linear(qd), self._ones
-        row = np.asarray([qd])
-        torque = self.model.friction_torque(row)[0].tolist()
-        return torque, self.friction.coverage_weight(row)[0].tolist()
 
 
 class ForceEstimator:
@@ -252,17 +186,7 @@ class ForceEstimator:
             self.robot = Robot(equivalent)
         self._rigid = None if self.robot is None else _RigidBody(self.robot, self.spring_stiffness)
         self._has_tip = self.robot is not None and self.robot.description.tip_frame is not None
-        self._friction = _Friction(model)
-        # ((joint, weight), ...), kernel) or an effect with .torque()
-        self._effects: list[Any] = []
-        for effect in model.effects:
-            kernel = effect_kernel(effect, self.n)
-            if kernel is None:
-                self._effects.append(effect)
-                continue
-            weights = effect.weights(self.n)
-            reach = tuple((j, float(w)) for j, w in enumerate(weights) if w != 0.0)
-            self._effects.append((reach, kernel[1]))
+        self._terms = ModelTerms(model)
         config = model.filter_config
         self._lag = config.torque_lag_samples
         self._omega_v = _TWO_PI * config.velocity_cutoff_hz
@@ -275,23 +199,6 @@ class ForceEstimator:
         self._t_first = 0.0
         self._stage1: list[float] = []  # L_v(q), L_v(tau)
         self._stage2: list[float] = []  # L of M qd, -C^T qd + N + springs, the rest, L_v(tau)
-
-    def _add_effects(
-        self, other: list[float], t: float, q: list[float], qd: list[float], load: list[float]
-    ) -> None:
-        """Add the found effects' torques to ``other`` (in place); ``load`` feeds ``tau<j>``."""
-        for entry in self._effects:
-            if type(entry) is tuple:
-                reach, kernel = entry
-                value = kernel(t, q, qd, load)
-                for joint, weight in reach:
-                    other[joint] += weight * value
-            else:
-                row = entry.torque(
-                    np.asarray([t]), np.asarray([q]), np.asarray([qd]), np.asarray([load])
-                )[0].tolist()
-                for j, value in enumerate(row):
-                    other[j] += value
 
     def update(self, t_s: float, q_rad: np.ndarray, tau_nm: np.ndarray) -> ForceEstimate:
         """Feed one sample (time, measured angles, commanded motor torques)."""
@@ -335,8 +242,6 @@ class ForceEstimator:
             momentum, terms = rigid.terms(q, qd)
         else:
             momentum = terms = [0.0] * n
-        friction, weight = self._friction(qd)
-        other = [f + o for f, o in zip(friction, self.model.offsets_nm.tolist(), strict=True)]
 
         # stage 2: the filter L of [M qd, -C^T qd + N + springs, other terms, L_v(tau)];
         # D_L(M qd) + L(-C^T qd + N + springs) is the filtered rigid-body torque, the load
@@ -352,8 +257,8 @@ class ForceEstimator:
             head = [a * s + b * x for s, x in zip(previous[: 2 * n], x_head, strict=True)]
             derivative = [(head[i] - previous[i]) / dt for i in range(n)]
         load = [derivative[i] + head[n + i] for i in range(n)]
-        if self._effects:
-            self._add_effects(other, t_s - self._t_first, q, qd, load)
+        # friction + offsets + found effects (which read the load) in one compiled call
+        other, weight = self._terms(t_s - self._t_first, q, qd, load)
         if first:
             tail = other + tau_v
             tau_filtered = tau_v

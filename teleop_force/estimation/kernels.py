@@ -1,329 +1,316 @@
-"""Single-sample kernels of the streaming estimator: the model's terms at one velocity sample.
+"""One-sample evaluation of a model's terms for the streaming estimator (compiled, numba).
 
-At 1 kHz the estimator evaluates every term of the model on *one* sample. NumPy's per-call
-overhead (~1 µs) then dominates arrays of three values, so these kernels take and return
-plain Python floats. Each computes exactly what its batch counterpart computes on a one-row
-array (same formulas, same operation order where it matters) and is checked against it in
-``tests/estimation/test_estimation_kernels.py``:
+At 1 kHz the estimator evaluates every term of the model on *one* sample. The terms are the
+single definitions of :mod:`teleop_force.friction.terms` and
+:mod:`teleop_force.identification.effect_terms`, which the batch methods call too; here they
+are called once per sample from one compiled function (:func:`model_terms_into`), with the
+model encoded in arrays (term tables, wavelet table, coverage grids, effect codes), so that
+no Python dispatch per term remains:
 
-* :class:`CoverageLookup`: :meth:`CoverageMap.trust` (multilinear interpolation of the
-  smoothed density between cell centres, zero one cell outside, smoothstep ramp);
-* :func:`linear_friction_kernel`: :meth:`CoulombViscous.torque` and
-  :meth:`CoupledCoulombViscous.torque`;
-* :func:`effect_kernel`: :meth:`FoundEffect.torque` for the shapes of
-  :data:`teleop_force.identification.effects.SHAPES`.
+* :class:`ModelTerms`: friction (Coulomb-viscous term tables, or a wavelet network blended
+  with its Coulomb-viscous fallback by the coverage trust), offsets and found effects;
+* :func:`rigid_terms_into`: ``T^T M T qd + rotor qd`` and ``T^T (g - C^T T qd) + springs``
+  from pinocchio's model-coordinate ``M``, ``C``, ``g`` (``T``: the joint coupling);
+* :func:`linear_map_into`: ``matrix @ x`` of a small matrix.
 
-Anything they do not know (another friction or effect class) is evaluated by its own
-vectorised method on a one-row array, so the estimator stays correct for every model.
+Friction or effect classes without a term encoding are evaluated by their own vectorised
+methods on a one-row array, so the estimator stays correct for every model.
 """
 
 from __future__ import annotations
 
-import math
-import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.compiled import njit_cached
+from teleop_force.errors import ModelError
 from teleop_force.friction.coverage import CoverageMap
-from teleop_force.identification.effects import BasisSpec, FoundEffect
+from teleop_force.friction.terms import (
+    coverage_trust_into,
+    linear_friction_torque_into,
+    wavelet_network_torque_into,
+)
+from teleop_force.friction.wavelet_network import WaveletNetwork
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.effect_terms import add_effects_torque_into
+from teleop_force.identification.effects import FoundEffect, effects_table
 
-#: ``f(qd) -> torque per joint`` on Python floats.
-FrictionKernel = Callable[[Sequence[float]], list[float]]
-#: ``f(t, q, qd, tau) -> torque on the effect's joint`` on Python floats.
-EffectKernel = Callable[[float, Sequence[float], Sequence[float], Sequence[float]], float]
-
-_VARIABLE = re.compile(r"^(t|q(\d+)-q(\d+)|q(\d+)|qd(\d+)|tau(\d+))$")
+#: Friction modes of :func:`model_terms_into`.
+FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK = 0, 1, 2
 
 
-def _sign(x: float) -> float:
-    """``np.sign`` of a finite float."""
-    return float((x > 0.0) - (x < 0.0))
+@njit_cached()
+def model_terms_into(
+    io: np.ndarray,
+    n: int,
+    mode: int,
+    offsets: np.ndarray,
+    linear_table: np.ndarray,
+    linear_parameters: np.ndarray,
+    wavelet_inputs: np.ndarray,
+    wavelet_table: np.ndarray,
+    grid_ints: np.ndarray,
+    grid_floats: np.ndarray,
+    grid_values: np.ndarray,
+    effect_codes: np.ndarray,
+    effect_floats: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Friction + offsets + found effects, and the coverage trust, at one sample.
 
-
-class CoverageLookup:
-    """:meth:`CoverageMap.trust` of every joint at one velocity sample, in Python floats.
-
-    ``map_coordinates(order=1, mode="grid-constant", cval=0)`` of the smoothed density:
-    multilinear between the cell centres, zeros outside the grid. Joints whose grids are the
-    same (the Omni's joints 2 and 3 share their inputs, region and counts) are computed once.
+    ``io``: ``[t, q (n), qd (n), load (n)]`` in, then ``[other (n), weight (n)]`` out, then
+    scratch (:meth:`ModelTerms.io_size`). ``mode``: no friction, a Coulomb-viscous term
+    table (``linear_table`` = ``[rows | reach]``, (T, 2 n)), or a wavelet table blended with
+    its fallback term table by the trust of the coverage grids (``grid_ints`` with no rows:
+    trust 1).
     """
+    t = io[0]
+    q = io[1 : 1 + n]
+    qd = io[1 + n : 1 + 2 * n]
+    load = io[1 + 2 * n : 1 + 3 * n]
+    other = io[1 + 3 * n : 1 + 4 * n]
+    weight = io[1 + 4 * n : 1 + 5 * n]
+    network = io[1 + 5 * n : 1 + 6 * n]
+    work = io[1 + 6 * n :]
+    for j in range(n):
+        other[j] = 0.0
+        weight[j] = 1.0
+    rows = linear_table[:, :n]
+    reach = linear_table[:, n:]
+    if mode == FRICTION_LINEAR:
+        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
+    elif mode == FRICTION_NETWORK:
+        for j in range(n):
+            network[j] = 0.0
+        wavelet_network_torque_into(qd, wavelet_inputs, wavelet_table, network)
+        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)  # the fallback
+        if grid_ints.shape[0] > 0:
+            coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
+        for j in range(n):
+            w = weight[j]
+            other[j] = w * network[j] + (1.0 - w) * other[j]
+    for j in range(n):
+        other[j] += offsets[j]
+    add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
+
+
+class _CoverageGrids:
+    """A :class:`CoverageMap` as the grid table of :func:`coverage_trust_into`, kept current."""
 
     def __init__(self, coverage: CoverageMap) -> None:
-        """Read the grids' geometry (bounds, cells) of ``coverage``; counts are read live."""
         self.coverage = coverage
-        grids = coverage.to_dict()["grids"]
-        self._geometry: list[tuple[tuple[int, ...], list[float], list[float], tuple[int, ...]]] = []
-        for j, grid in enumerate(grids):
-            shape = tuple(int(s) for s in coverage.grid_shape(j))
-            lo = np.asarray(grid["x_min_rad_s"], dtype=float)
-            hi = np.asarray(grid["x_max_rad_s"], dtype=float)
-            inputs = tuple(int(i) for i in grid["inputs"])
-            cell = (hi - lo) / np.asarray(shape)
-            self._geometry.append((inputs, lo.tolist(), cell.tolist(), shape))
-        self.n = len(grids)
+        n = coverage.n_joints
+        geometry = [coverage.grid_geometry(j) for j in range(n)]
+        dmax = max(g[0].size for g in geometry)
+        self.ints = np.zeros((n, 2 + 2 * dmax), dtype=np.int64)
+        self.floats = np.zeros((n, 2 + 2 * dmax))
         config = coverage.config
-        self._ramp_lo = float(config.untrained_density)
-        self._ramp_span = float(config.trained_density) - self._ramp_lo
-        self._seen: list[np.ndarray | None] = [None] * self.n
-        self._values: list[list[float]] = [[] for _ in range(self.n)]
-        self._alias: list[int] = list(range(self.n))
+        for j, (inputs, lo, cell, shape) in enumerate(geometry):
+            d = inputs.size
+            self.ints[j, 0] = d
+            self.ints[j, 2 : 2 + d] = inputs
+            self.ints[j, 2 + dmax : 2 + dmax + d] = shape
+            self.floats[j, :2] = (config.untrained_density, config.trained_density)
+            self.floats[j, 2 : 2 + d] = lo
+            self.floats[j, 2 + dmax : 2 + dmax + d] = cell
+        self._seen: list[np.ndarray | None] = [None] * n
+        self.values = np.zeros(0)
 
-    def _reload(self) -> None:
-        """Re-read the density grids and find the joints that share one."""
-        for j in range(self.n):
-            grid = self.coverage.density_grid(j)
-            self._seen[j] = grid
-            self._values[j] = grid.reshape(-1).tolist()
-        self._alias = list(range(self.n))
-        for j in range(self.n):
-            for i in range(j):
-                if self._geometry[i] == self._geometry[j] and self._values[i] == self._values[j]:
-                    self._alias[j] = i
-                    break
-
-    def density(self, qd: Sequence[float], joint: int) -> float:
-        """Smoothed samples per cell at ``qd`` for ``joint`` (``CoverageMap.density``)."""
-        if any(self.coverage.density_grid(j) is not self._seen[j] for j in range(self.n)):
-            self._reload()
-        return self._density(qd, joint)
-
-    def _density(self, qd: Sequence[float], joint: int) -> float:
-        values = self._values[joint]
-        inputs, lo, cell, shape = self._geometry[joint]
-        if len(inputs) == 1:
-            c = (qd[inputs[0]] - lo[0]) / cell[0] - 0.5
-            base = math.floor(c)
-            frac = c - base
-            size = shape[0]
-            total = 0.0
-            if 0 <= base < size:
-                total += (1.0 - frac) * values[base]
-            if 0 <= base + 1 < size:
-                total += frac * values[base + 1]
-            return total if total > 0.0 else 0.0
-        if len(inputs) == 2:
-            cx = (qd[inputs[0]] - lo[0]) / cell[0] - 0.5
-            cy = (qd[inputs[1]] - lo[1]) / cell[1] - 0.5
-            bx, by = math.floor(cx), math.floor(cy)
-            fx, fy = cx - bx, cy - by
-            nx, ny = shape
-            if bx >= 0 and bx + 1 < nx and by >= 0 and by + 1 < ny:  # inside: four corners
-                row = bx * ny + by
-                gx = 1.0 - fx
-                total = (1.0 - fy) * (gx * values[row] + fx * values[row + ny]) + fy * (
-                    gx * values[row + 1] + fx * values[row + ny + 1]
-                )
-                return total if total > 0.0 else 0.0
-            total = 0.0
-            y_in, y1_in = 0 <= by < ny, 0 <= by + 1 < ny
-            for i, wx in ((bx, 1.0 - fx), (bx + 1, fx)):
-                if 0 <= i < nx:
-                    row = i * ny + by
-                    if y_in:
-                        total += wx * (1.0 - fy) * values[row]
-                    if y1_in:
-                        total += wx * fy * values[row + 1]
-            return total if total > 0.0 else 0.0
-        corners: list[tuple[int, float]] = [(0, 1.0)]
-        for axis, i in enumerate(inputs):
-            c = (qd[i] - lo[axis]) / cell[axis] - 0.5
-            base = math.floor(c)
-            frac = c - base
-            size = shape[axis]
-            corners = [
-                (index * size + k, weight * w)
-                for index, weight in corners
-                for k, w in ((base, 1.0 - frac), (base + 1, frac))
-                if 0 <= k < size
-            ]
-        total = sum(weight * values[index] for index, weight in corners)
-        return total if total > 0.0 else 0.0
-
-    def trust(self, qd: Sequence[float]) -> list[float]:
-        """Trust weight in [0, 1] of every joint at ``qd`` (``CoverageMap.trust``)."""
-        seen = self._seen
-        grid_of = self.coverage.density_grid
-        for j in range(self.n):
-            if grid_of(j) is not seen[j]:
-                self._reload()
+    def refresh(self) -> None:
+        """Re-read the density grids if any changed (new counts)."""
+        coverage, seen = self.coverage, self._seen
+        for j in range(len(seen)):
+            if coverage.density_grid(j) is not seen[j]:
                 break
-        out: list[float] = []
-        ramp_lo, span = self._ramp_lo, self._ramp_span
-        for j, alias in enumerate(self._alias):
-            if alias != j:
-                out.append(out[alias])
-                continue
-            s = (self._density(qd, j) - ramp_lo) / span
-            s = 0.0 if s < 0.0 else (1.0 if s > 1.0 else s)
-            out.append(s * s * (3.0 - 2.0 * s))
-        return out
+        else:
+            return
+        chunks = []
+        offset = 0
+        for j in range(len(seen)):
+            grid = coverage.density_grid(j)
+            seen[j] = grid
+            self.ints[j, 1] = offset
+            chunks.append(np.asarray(grid, dtype=float).reshape(-1))
+            offset += chunks[-1].size
+        self.values = np.ascontiguousarray(np.concatenate(chunks))
 
 
-def linear_friction_kernel(friction: FrictionModel) -> FrictionKernel | None:
-    """Return a float kernel of a (coupled) Coulomb-viscous model; ``None`` for other models.
+_UNSET = object()
+_NO_INTS = np.zeros((0, 4), dtype=np.int64)
+_NO_FLOATS = np.zeros((0, 4))
+_NO_VALUES = np.zeros(0)
 
-    The kernel reads the model's parameters at every call, so it follows later changes.
+
+class ModelTerms:
+    """Friction, offsets and found effects of a model at one sample, in one compiled call.
+
+    Follows later changes of the model's friction: new parameters (read live), a network's
+    new structure or coefficients, a replaced fallback or coverage map, new coverage counts.
     """
-    if type(friction) is CoulombViscous:
-        pairs: tuple[tuple[tuple[int, int], ...], ...] = ((),) * friction.n_joints
-    elif type(friction) is CoupledCoulombViscous:
-        pairs = tuple(
-            tuple((min(j, k), max(j, k)) for k in inputs if k != j)
-            for j, inputs in enumerate(friction.friction_inputs)
-        )
-    else:
-        return None
-    n = friction.n_joints
 
-    def torque(qd: Sequence[float]) -> list[float]:
-        p = friction.parameters.tolist()
-        out = []
-        i = 0
+    def __init__(self, model: DynamicModel) -> None:
+        """Encode ``model``'s terms (ModelError: an effect outside the model's joints)."""
+        self.model = model
+        self.n = n = model.n_joints
+        self.friction = model.friction
+        found = [e for e in model.effects if isinstance(e, FoundEffect)]
+        self._other_effects = [e for e in model.effects if not isinstance(e, FoundEffect)]
+        table = effects_table(found, n)
+        self._effect_codes, self._effect_floats = table.codes, table.floats
+        self.io = np.zeros(1 + 6 * n + table.work.size)
+        self._out = slice(1 + 3 * n, 1 + 5 * n)
+        self._network = self.friction if isinstance(self.friction, WaveletNetwork) else None
+        self._linear = None if self._network is not None else _term_table(self.friction, n)
+        self._fallback: Any = _UNSET  # what the tables below were built for
+        self._coverage: object = _UNSET
+        self._grids: _CoverageGrids | None = None
+        self._fallback_table = np.zeros((0, 2 * n))
+
+    def _refresh_network(self, network: WaveletNetwork) -> None:
+        """(Re)build the tables of the network's fallback and coverage map."""
+        fallback = network.fallback
+        if fallback is None:
+            network.blended_torque(np.zeros((1, self.n)))  # raises the model error
+            raise ModelError("wn: blended_torque needs a fitted coupled-CV fallback model")
+        table = _term_table(fallback, self.n)
+        if table is None:
+            raise ModelError(f"wn: fallback {fallback.kind} has no Coulomb-viscous terms")
+        self._fallback, self._fallback_table = fallback, table
+        coverage = network.coverage
+        self._coverage = coverage
+        self._grids = None if coverage is None else _CoverageGrids(coverage)
+
+    def __call__(
+        self, t: float, q: Sequence[float], qd: Sequence[float], load: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """``(friction + offsets + effects, coverage weight)`` per joint at one sample.
+
+        ``t`` is the time since the stream's first sample, ``load`` the filtered rigid-body
+        model torque (the effects' ``tau<j>``).
+        """
+        n = self.n
+        io = self.io
+        io[: 1 + 3 * n] = [t, *q, *qd, *load]
+        network = self._network
+        friction = self.friction
+        python_friction = False
+        if network is not None:
+            if network.fallback is not self._fallback or network.coverage is not self._coverage:
+                self._refresh_network(network)
+            grids = self._grids
+            if grids is not None:
+                grids.refresh()
+                grid_ints, grid_floats, values = grids.ints, grids.floats, grids.values
+            else:
+                grid_ints, grid_floats, values = _NO_INTS, _NO_FLOATS, _NO_VALUES
+            inputs, wavelets = network.streaming_table()
+            model_terms_into(
+                io, n, FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
+                self._fallback.parameters, inputs, wavelets, grid_ints, grid_floats, values,
+                self._effect_codes, self._effect_floats,
+            )  # fmt: skip
+        else:
+            linear = self._linear
+            python_friction = linear is None
+            model_terms_into(
+                io, n, FRICTION_NONE if python_friction else FRICTION_LINEAR,
+                self.model.offsets_nm, _NO_LINEAR if linear is None else linear,
+                friction.parameters, _NO_WAVELET_INPUTS, _NO_FLOATS, _NO_INTS, _NO_FLOATS,
+                _NO_VALUES, self._effect_codes, self._effect_floats,
+            )  # fmt: skip
+        out = io[self._out].tolist()
+        other, weight = out[:n], out[n:]
+        if python_friction:
+            row = np.asarray([qd], dtype=float)
+            torque = self.model.friction_torque(row)[0].tolist()
+            other = [o + f for o, f in zip(other, torque, strict=True)]
+            weight = friction.coverage_weight(row)[0].tolist()
+        for effect in self._other_effects:
+            torque = effect.torque(
+                np.asarray([t]), np.asarray([q]), np.asarray([qd]), np.asarray([load])
+            )[0].tolist()
+            other = [o + f for o, f in zip(other, torque, strict=True)]
+        return other, weight
+
+
+_NO_LINEAR = np.zeros((0, 2))
+_NO_WAVELET_INPUTS = np.zeros((0, 1), dtype=np.int64)
+
+
+def _term_table(friction: object, n: int) -> np.ndarray | None:
+    """``[rows | reach]`` (T, 2 n) of a Coulomb-viscous friction model; None for others."""
+    term_table = getattr(friction, "term_table", None)
+    if term_table is None:
+        return None
+    rows, reach = term_table()
+    return np.ascontiguousarray(np.concatenate((rows, reach), axis=1), dtype=float)
+
+
+@njit_cached()
+def linear_map_into(matrix: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
+    """``out = matrix @ x`` over the nonzero entries of a small matrix."""
+    for i in range(matrix.shape[0]):
+        total = 0.0
+        for j in range(matrix.shape[1]):
+            m = matrix[i, j]
+            if m == 1.0:
+                total += x[j]
+            elif m != 0.0:
+                total += m * x[j]
+        out[i] = total
+
+
+@njit_cached()
+def rigid_terms_into(
+    state: np.ndarray,
+    v_model: np.ndarray,
+    mass: np.ndarray,
+    coriolis: np.ndarray,
+    gravity: np.ndarray,
+    coupling: np.ndarray,
+    rotor: np.ndarray,
+    springs: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Momentum and ``-C^T qd + N + springs`` in motor coordinates, at one sample.
+
+    ``state``: ``[q (n), qd (n), momentum (n), other (n)]``, the last two written;
+    ``v_model = T qd``; ``mass`` (upper triangle valid), ``coriolis``, ``gravity`` are
+    pinocchio's in model coordinates, ``coupling`` is ``T`` (n_model, n), ``springs`` rows
+    ``[joint, stiffness, rest angle]``. The result is ``T^T M v_model + rotor qd`` and
+    ``T^T (g - C^T v_model) + springs``.
+    """
+    n_model, n = coupling.shape
+    q = state[:n]
+    qd = state[n : 2 * n]
+    momentum = state[2 * n : 3 * n]
+    other = state[3 * n : 4 * n]
+    for j in range(n):
+        momentum[j] = rotor[j] * qd[j]
+        other[j] = 0.0
+    for i in range(n_model):
+        p = 0.0
+        w = 0.0
+        for j in range(n_model):
+            p += (mass[i, j] if i <= j else mass[j, i]) * v_model[j]
+            w += coriolis[j, i] * v_model[j]
+        w = gravity[i] - w
         for j in range(n):
-            v = qd[j]
-            total = p[i] * _sign(v) + p[i + 1] * v
-            i += 2
-            for a, b in pairs[j]:
-                rel = qd[a] - qd[b]
-                total += p[i] * _sign(rel) + p[i + 1] * rel
-                i += 2
-            out.append(total)
-        return out
-
-    return torque
-
-
-#: ``f(t, q, qd, tau) -> value`` on Python floats.
-VariableReader = Callable[[float, Sequence[float], Sequence[float], Sequence[float]], float]
+            t = coupling[i, j]
+            if t == 1.0:
+                momentum[j] += p
+                other[j] += w
+            elif t != 0.0:
+                momentum[j] += t * p
+                other[j] += t * w
+    for s in range(springs.shape[0]):
+        j = int(springs[s, 0])
+        other[j] += springs[s, 1] * (q[j] - springs[s, 2])
 
 
-def _variable_reader(name: str) -> VariableReader:
-    """Reader of an effect variable (``t`` is the time since the stream's first sample)."""
-    match = _VARIABLE.match(name)
-    if match is None:
-        raise ValueError(f"unknown effect variable {name!r}")
-    if name == "t":
-        return lambda t, q, qd, tau: t
-    if match.group(2) is not None:
-        a, b = int(match.group(2)) - 1, int(match.group(3)) - 1
-        return lambda t, q, qd, tau: q[a] - q[b]
-    if match.group(4) is not None:
-        i = int(match.group(4)) - 1
-        return lambda t, q, qd, tau: q[i]
-    if match.group(5) is not None:
-        i = int(match.group(5)) - 1
-        return lambda t, q, qd, tau: qd[i]
-    i = int(match.group(6)) - 1
-    return lambda t, q, qd, tau: tau[i]
-
-
-def _shape_kernel(spec: BasisSpec, c: list[float]) -> Callable[[float], float]:
-    """``BasisSpec.basis(x) @ c`` of one value ``x`` of the variable (before modulation)."""
-    shape = spec.shape
-    if shape == "constant":
-        return lambda x: c[0]
-    if shape == "linear":
-        return lambda x: c[0] * x
-    if shape == "abs":
-        return lambda x: c[0] * abs(x)
-    exp, sin, cos = math.exp, math.sin, math.cos
-    if shape == "smooth":
-        centres = np.linspace(spec.lo, spec.hi, spec.count).tolist()
-        width = (spec.hi - spec.lo) / (spec.count - 1)
-        pairs = list(zip(centres, c, strict=True))
-        return lambda x: sum(w * exp(-0.5 * ((x - m) / width) ** 2) for m, w in pairs)
-    if shape == "periodic":
-        k = (np.arange(1, spec.harmonics + 1) * spec.frequency).tolist()
-        terms = list(zip(k, c[: len(k)], c[len(k) :], strict=True))
-        return lambda x: sum(a * sin(x * f) + b * cos(x * f) for f, a, b in terms)
-    if shape == "stribeck":
-        pairs = list(zip(spec.scales, c, strict=True))
-        return lambda x: sum(w * exp(-((x / v) ** 2)) for v, w in pairs)
-    raise ValueError(f"unknown effect shape {shape!r}")
-
-
-def effect_kernel(effect: object, n_joints: int) -> tuple[int, EffectKernel] | None:
-    """Return ``(joint, kernel)`` of a :class:`FoundEffect`; ``None`` for anything else.
-
-    The kernel keeps the effect's coefficients as they are now (effects are not adapted).
-    """
-    if type(effect) is not FoundEffect:
-        return None
-    spec = effect.spec
-    constant = spec.shape == "constant"
-    coefficients = effect.coefficients.tolist()
-    half = len(coefficients) // 2
-    try:
-        if spec.modulation == "both":  # the basis, then the basis times sgn(qd_joint)
-            value = _shape_kernel(spec, coefficients[:half])
-            signed = _shape_kernel(spec, coefficients[half:])
-        else:
-            value = _shape_kernel(spec, coefficients)
-        read = (lambda t, q, qd, tau: 0.0) if constant else _variable_reader(spec.variable)
-    except ValueError:
-        return None
-    if not constant:
-        match = _VARIABLE.match(spec.variable)
-        indices = [int(g) - 1 for g in (match.groups()[1:] if match else ()) if g is not None]
-        if any(not 0 <= i < n_joints for i in indices):
-            return None  # the vectorised path raises the model error
-    joint = spec.joint
-    Floats = Sequence[float]
-    if spec.modulation == "sign":
-
-        def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
-            v = qd[joint]
-            return value(read(t, q, qd, tau)) * ((v > 0.0) - (v < 0.0))
-
-    elif spec.modulation == "positive":
-
-        def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
-            return value(read(t, q, qd, tau)) if qd[joint] > 0.0 else 0.0
-
-    elif spec.modulation == "both":
-
-        def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
-            x = read(t, q, qd, tau)
-            v = qd[joint]
-            return value(x) + signed(x) * ((v > 0.0) - (v < 0.0))
-
-    else:
-
-        def torque(t: float, q: Floats, qd: Floats, tau: Floats) -> float:
-            return value(read(t, q, qd, tau))
-
-    return joint, torque
-
-
-def linear_expression(row: Sequence[float], var: str) -> str:
-    """Return the source of ``sum_j row[j] * var[j]`` over the non-zero entries (or ``0.0``)."""
-    terms = []
-    for j, v in enumerate(row):
-        v = float(v)
-        if v == 0.0:
-            continue
-        if v == 1.0:
-            terms.append(f"{var}[{j}]")
-        elif v == -1.0:
-            terms.append(f"-{var}[{j}]")
-        else:
-            terms.append(f"{v!r} * {var}[{j}]")
-    return " + ".join(terms).replace("+ -", "- ") if terms else "0.0"
-
-
-def compile_linear_map(matrix: np.ndarray) -> Callable[[Sequence[float]], list[float]]:
-    """``x -> (matrix @ x).tolist()`` as one unrolled Python expression (zeros skipped).
-
-    For the small constant matrices of the streaming estimator (joint couplings): an
-    unrolled list display costs a fraction of a NumPy call on three values.
-    """
-    rows = np.asarray(matrix, dtype=float)
-    if rows.ndim != 2 or not np.all(np.isfinite(rows)):
-        raise ValueError("compile_linear_map needs a finite 2-D matrix")
-    body = ", ".join(linear_expression(row, "x") for row in rows)
-    namespace: dict[str, object] = {}
-    exec(f"def linear_map(x):\n    return [{body}]\n", namespace)
-    return namespace["linear_map"]  # type: ignore[return-value]
+def spring_table(joints: Sequence[int], stiffness: np.ndarray, rest: Sequence[float]) -> np.ndarray:
+    """Rows ``[joint, stiffness, rest angle]`` of the springs for :func:`rigid_terms_into`."""
+    table = np.zeros((len(joints), 3))
+    for s, (j, k, r) in enumerate(zip(joints, stiffness, rest, strict=True)):
+        table[s] = (float(j), float(k), float(r))
+    return table

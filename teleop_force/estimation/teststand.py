@@ -39,7 +39,7 @@ from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.identification.lowpass import filtered_derivative_batch, lowpass_batch
+from teleop_force.lowpass import filtered_derivative_batch, lowpass_batch
 from teleop_force.identification.pipeline import prepare
 from teleop_force.identification.regressor import (
     BaseParameters,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from teleop_force.errors import ModelError
+from teleop_force.errors import ModelFileError
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.friction.kinds import FRICTION_KINDS, FrictionKind
@@ -12,7 +12,7 @@ from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 
 
 def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
-    """Rebuild a friction model from its ``to_dict`` form."""
+    """Rebuild a friction model from its ``to_dict`` form; ModelFileError names a bad field."""
     kind = data.get("kind") if isinstance(data, dict) else None
     if kind == CoulombViscous.kind:
         return CoulombViscous.from_dict(data)
@@ -24,7 +24,10 @@ def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
         from teleop_force.friction.wavelet_network import WaveletNetwork
 
         return WaveletNetwork.from_dict(data)
-    raise ModelError(f"unknown friction kind {kind!r}; expected one of {', '.join(FRICTION_KINDS)}")
+    expected = ", ".join(FRICTION_KINDS)
+    raise ModelFileError(
+        f"unknown friction kind {kind!r}; expected one of {expected}", column="kind"
+    )
 
 
 __all__ = [

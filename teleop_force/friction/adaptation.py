@@ -54,7 +54,7 @@ Structure (Section III-D), checked every ``structure_interval`` samples, vectori
 * inclusion: when an active wavelet's ``|c|`` *becomes* greater than ``mu`` (it was
   ``<= mu`` at the previous check; new wavelets start at 0) its pool neighbours are activated
   (coefficient 0; filtered-basis state set to their *current raw value*, the convention of
-  :class:`teleop_force.identification.lowpass.LowPass` for a filter's first sample). Reading
+  :class:`teleop_force.lowpass.LowPass` for a filter's first sample). Reading
   "becomes" as
   the crossing event, not the level, keeps a removed neighbour of a large wavelet out until
   some wavelet crosses ``mu`` again (with the level reading the pair ``theta > mu`` makes
@@ -71,7 +71,7 @@ Batch alternative: :func:`fit_batch` solves ridge-regularised least squares of t
 filtered basis against a filtered friction-torque target, normal equations built in chunks
 from every ``row_stride``-th filtered row (the basis is evaluated and filtered on every sample
 by the compiled :class:`teleop_force.friction.kernels.FilteredWavelets`), one thread per group
-of joints sharing a pool geometry, OpenBLAS on one thread (:mod:`.blas_threads`).
+of joints sharing a pool geometry, BLAS on one thread (threadpoolctl).
 """
 
 from __future__ import annotations
@@ -88,12 +88,12 @@ import numpy as np
 from scipy.fft import irfftn, next_fast_len, rfftn
 from scipy.linalg import cho_factor, cho_solve
 from scipy.ndimage import uniform_filter
+from threadpoolctl import threadpool_limits
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError
-from teleop_force.friction.blas_threads import single_threaded_blas
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import WaveletNetwork, mexican_hat
-from teleop_force.identification.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
+from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
 
 #: An excluded wavelet's coefficient decays as ``exp(-t / tau)`` with
 #: ``tau = removal_time_s / REMOVAL_TIME_CONSTANTS``; after ``removal_time_s`` (e^-5, < 1 %
@@ -202,7 +202,7 @@ def _regularised_intervals(t_s: np.ndarray) -> np.ndarray:
 
     Time stamps like ``arange(N) / 1000`` differ from a uniform grid by rounding only; using
     one exact interval makes the per-block filter constants identical (and cacheable) and
-    matches :func:`teleop_force.identification.lowpass.lowpass_batch`, which does the same.
+    matches :func:`teleop_force.lowpass.lowpass_batch`, which does the same.
     """
     dt = sample_intervals(t_s)
     median = float(np.median(dt))
@@ -890,8 +890,9 @@ def fit_batch(
     ``relative_rms`` are then over those rows. The identification pipeline uses
     :func:`teleop_force.identification.wavelet_training.batch_row_stride` (3 at 1 kHz and 8 Hz).
     Groups of
-    joints with the same pool geometry are fitted in parallel threads, with OpenBLAS on one
-    thread (:func:`~teleop_force.friction.blas_threads.single_threaded_blas`).
+    joints with the same pool geometry are fitted in parallel threads, with BLAS on one
+    thread (``threadpoolctl.threadpool_limits``): OpenBLAS's workers busy-wait between the
+    small calls, which on shared cores were measured 10 to 400 times slower than one thread.
     """
     start_wall = time.perf_counter()
     qd = np.asarray(qd, dtype=float)
@@ -946,35 +947,39 @@ def fit_batch(
         Returns ``(joint, candidates, global indices kept, coefficients, rms, relative rms)``.
         """
         out = []
-        with single_threaded_blas():
-            local = candidates_of(members)
-            done: set[int] = set()
-            for j in members:
-                if j in done:
-                    continue
-                # joints with the same candidates share one Gram matrix
-                same = [i for i in members if np.array_equal(local[i], local[j])]
-                done.update(same)
-                offset = int(pool.joint_offsets[j])
-                gram, rhs, yy, rows = filtered_basis_normal_equations(
-                    network, j, local[j] + offset, t_arr, qd, target_L[:, same],
-                    cutoff_hz, row_stride, chunk_samples,
-                )  # fmt: skip
-                amp = pool.amplitude[local[j] + offset]
-                for col, i in enumerate(same):
-                    keep, coef = _ridge_with_pruning(gram, rhs[:, col], amp, ridge, prune_tol_nm)
-                    gk = gram[np.ix_(keep, keep)]
-                    sse = float(yy[col] - 2.0 * coef @ rhs[keep, col] + coef @ gk @ coef)
-                    rms_i = math.sqrt(max(sse, 0.0) / max(rows, 1))
-                    rel_i = rms_i / max(math.sqrt(float(yy[col]) / max(rows, 1)), 1e-300)
-                    kept = local[i][keep] + int(pool.joint_offsets[i])
-                    out.append((i, len(local[i]), kept, coef, rms_i, rel_i))
+        local = candidates_of(members)
+        done: set[int] = set()
+        for j in members:
+            if j in done:
+                continue
+            # joints with the same candidates share one Gram matrix
+            same = [i for i in members if np.array_equal(local[i], local[j])]
+            done.update(same)
+            offset = int(pool.joint_offsets[j])
+            gram, rhs, yy, rows = filtered_basis_normal_equations(
+                network, j, local[j] + offset, t_arr, qd, target_L[:, same],
+                cutoff_hz, row_stride, chunk_samples,
+            )  # fmt: skip
+            amp = pool.amplitude[local[j] + offset]
+            for col, i in enumerate(same):
+                keep, coef = _ridge_with_pruning(gram, rhs[:, col], amp, ridge, prune_tol_nm)
+                gk = gram[np.ix_(keep, keep)]
+                sse = float(yy[col] - 2.0 * coef @ rhs[keep, col] + coef @ gk @ coef)
+                rms_i = math.sqrt(max(sse, 0.0) / max(rows, 1))
+                rel_i = rms_i / max(math.sqrt(float(yy[col]) / max(rows, 1)), 1e-300)
+                kept = local[i][keep] + int(pool.joint_offsets[i])
+                out.append((i, len(local[i]), kept, coef, rms_i, rel_i))
         return out
 
     # the joint groups are independent: one thread each (the kernel and BLAS release the GIL)
     tasks = list(groups.values())
     workers = max(1, min(len(tasks), os.cpu_count() or 1))
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fit_batch") as executor:
+    # one BLAS thread for the whole pool: threadpoolctl's limit is process-wide and restored
+    # on exit, so it is set once here, around every group's thread, not inside each
+    with (
+        threadpool_limits(limits=1, user_api="blas"),
+        ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fit_batch") as executor,
+    ):
         futures = [executor.submit(fit_group, members) for members in tasks]
         if update_coverage and network.coverage is not None:
             network.coverage.add(qd)

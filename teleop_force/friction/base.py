@@ -25,28 +25,6 @@ from teleop_force.errors import ModelError, ModelFileError
 MAX_JOINTS = 256
 
 
-def file_floats(value: object, field: str, *, finite: bool = True) -> np.ndarray:
-    """``value`` of a model file as a float array; raise ModelFileError naming ``field``.
-
-    Rejects what is not numbers (strings, objects, ragged lists), integers beyond float64
-    and, unless ``finite=False``, NaN and infinities.
-    """
-    if isinstance(value, str | bytes | dict) or value is None:
-        raise ModelFileError(f"expected numbers, got {type(value).__name__}", column=field)
-    try:
-        out = np.asarray(value, dtype=float)
-    except OverflowError:
-        raise ModelFileError("number beyond the float64 range", column=field) from None
-    except (TypeError, ValueError) as exc:
-        raise ModelFileError(f"expected numbers ({exc})", column=field) from None
-    if finite and not np.all(np.isfinite(out)):
-        flat = out.reshape(-1)
-        first = int(np.flatnonzero(~np.isfinite(flat))[0])
-        where = f" at position {first}" if out.ndim else ""
-        raise ModelFileError(f"non-finite value {flat[first]}{where}", column=field)
-    return out
-
-
 def file_error(exc: Exception, field: str, what: str) -> ModelFileError:
     """Return the ModelFileError that ``exc``, raised reading ``field`` of a ``what``, becomes.
 
@@ -62,33 +40,6 @@ def file_error(exc: Exception, field: str, what: str) -> ModelFileError:
 
 #: What a model-file reader turns into a ModelFileError with :func:`file_error`.
 FILE_ERRORS = (ModelFileError, KeyError, TypeError, ValueError, OverflowError)
-
-
-def file_int(value: object, field: str, low: int, high: int) -> int:
-    """Read an integer ``low <= value <= high`` of a model file; ModelFileError names ``field``."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ModelFileError(f"expected an integer, got {type(value).__name__}", column=field)
-    if isinstance(value, float) and not value.is_integer():
-        raise ModelFileError(f"expected an integer, got {value!r}", column=field)
-    if not low <= value <= high:
-        digits = len(str(abs(int(value)))) if abs(value) < 10**4000 else "> 4000"
-        shown = value if abs(value) < 10**30 else f"a number of {digits} digits"
-        raise ModelFileError(f"expected {low}..{high}, got {shown}", column=field)
-    return int(value)
-
-
-def file_indices(value: object, field: str, size: int) -> np.ndarray:
-    """Read a flat list of integer indices ``0 <= i < size``; ModelFileError names ``field``."""
-    values = file_floats(value, field)
-    if values.ndim != 1:
-        raise ModelFileError("expected a flat list of indices", column=field)
-    if np.any(values != np.round(values)):
-        raise ModelFileError("indices must be integers", column=field)
-    if values.size and (values.min() < 0 or values.max() >= size):
-        bad = values[(values < 0) | (values >= size)][0]
-        shown = f"{bad:.0f}" if abs(bad) < 1e15 else f"{bad:.3g}"
-        raise ModelFileError(f"index {shown} outside 0..{size - 1}", column=field)
-    return values.astype(np.int64)
 
 
 class FrictionModel(ABC):

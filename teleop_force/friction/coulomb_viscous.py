@@ -1,4 +1,9 @@
-"""Coulomb + viscous friction, plain (per joint) and coupled (paper experiment 2)."""
+"""Coulomb + viscous friction, plain (per joint) and coupled (paper experiment 2).
+
+The formulas are the terms of :mod:`teleop_force.friction.terms` (one definition for the
+batch fit and the streaming estimator): each model is a table of terms, one velocity form
+(``qd_j``, ``qd_a - qd_b``) per pair of parameters ``[a_c, a_v]``.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.terms import linear_friction_basis, term_table_torque
+from teleop_force.schema import read_entry
 
 
 class CoulombViscous(FrictionModel):
@@ -20,10 +27,19 @@ class CoulombViscous(FrictionModel):
         """Two parameters per joint."""
         return (2,) * self.n_joints
 
+    def term_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(rows, reach)`` of the terms (:mod:`~teleop_force.friction.terms`): ``qd_j``."""
+        eye = np.eye(self.n_joints)
+        return eye, eye
+
     def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
         """``[sgn(qd_j), qd_j]``."""
-        v = qd[:, joint]
-        return np.stack((np.sign(v), v), axis=1)
+        rows, _ = self.term_table()
+        return linear_friction_basis(_samples(qd), rows, joint, joint + 1)
+
+    def torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction torque [N m] at ``qd`` ((n,) -> (n,), or (N, n) -> (N, n))."""
+        return term_table_torque(qd, *self.term_table(), self.parameters, self.kind)
 
     def parameter_names(self, joint: int) -> list[str]:
         """``a_c,j`` and ``a_v,j``, 1-based."""
@@ -40,8 +56,10 @@ class CoulombViscous(FrictionModel):
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        n_joints, parameters = _common_fields(data)
-        return _built(lambda: cls(n_joints, parameters))
+        from teleop_force.friction.file_schema import CoulombViscousEntry
+
+        entry = read_entry(data, CoulombViscousEntry)
+        return _built(lambda: cls(entry.n_joints, np.array(entry.parameters)))
 
 
 class CoupledCoulombViscous(FrictionModel):
@@ -71,7 +89,24 @@ class CoupledCoulombViscous(FrictionModel):
             tuple((min(j, k), max(j, k)) for k in s if k != j)
             for j, s in enumerate(self.friction_inputs)
         )
+        # the terms joint by joint (own velocity, then the pairs), as the parameters
+        rows, reach, self._first = [], [], [0]
+        for j, pairs in enumerate(self._pairs):
+            for a, b in ((j, -1), *pairs):
+                row = np.zeros(n_joints)
+                row[a] = 1.0
+                if b >= 0:
+                    row[b] = -1.0
+                rows.append(row)
+                reach.append(np.eye(n_joints)[j])
+            self._first.append(len(rows))
+        self._rows = np.array(rows)
+        self._reach = np.array(reach)
         super().__init__(n_joints, parameters)
+
+    def term_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, reach)`` of the terms (:mod:`teleop_force.friction.terms`), joint by joint."""
+        return self._rows, self._reach
 
     def parameter_counts(self) -> tuple[int, ...]:
         """Two, plus two per coupled joint."""
@@ -79,12 +114,13 @@ class CoupledCoulombViscous(FrictionModel):
 
     def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
         """``[sgn(qd_j), qd_j, sgn(qd_ab), qd_ab, ...]``."""
-        v = qd[:, joint]
-        columns = [np.sign(v), v]
-        for a, b in self._pairs[joint]:
-            rel = qd[:, a] - qd[:, b]
-            columns += [np.sign(rel), rel]
-        return np.stack(columns, axis=1)
+        return linear_friction_basis(
+            _samples(qd), self._rows, self._first[joint], self._first[joint + 1]
+        )
+
+    def torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction torque [N m] at ``qd`` ((n,) -> (n,), or (N, n) -> (N, n))."""
+        return term_table_torque(qd, self._rows, self._reach, self.parameters, self.kind)
 
     def parameter_names(self, joint: int) -> list[str]:
         """``a_c,j``, ``a_v,j``, then ``a_cr,j(ab)`` and ``a_vr,j(ab)`` per pair."""
@@ -105,33 +141,16 @@ class CoupledCoulombViscous(FrictionModel):
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoupledCoulombViscous:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        n_joints, parameters = _common_fields(data)
-        value = data.get("friction_inputs")
-        if not isinstance(value, list) or len(value) != n_joints:
-            raise ModelFileError(
-                f"expected {n_joints} lists of joint indices", column="friction_inputs"
-            )
-        inputs = []
-        for j, entry in enumerate(value):
-            field = f"friction_inputs[{j}]"
-            if not isinstance(entry, list):
-                raise ModelFileError("expected a list of joint indices", column=field)
-            inputs.append(tuple(file_int(k, field, 0, n_joints - 1) for k in entry))
-        return _built(lambda: cls(n_joints, tuple(inputs), parameters))
+        from teleop_force.friction.file_schema import CoupledCoulombViscousEntry
+
+        entry = read_entry(data, CoupledCoulombViscousEntry)
+        inputs = tuple(tuple(s) for s in entry.friction_inputs)
+        return _built(lambda: cls(entry.n_joints, inputs, np.array(entry.parameters)))
 
 
-def _common_fields(data: object) -> tuple[int, np.ndarray]:
-    """``n_joints`` and finite ``parameters`` of a CV model's dict (ModelFileError naming them)."""
-    if not isinstance(data, dict):
-        raise ModelFileError(f"expected an object, got {type(data).__name__}")
-    if "n_joints" not in data or "parameters" not in data:
-        missing = "n_joints" if "n_joints" not in data else "parameters"
-        raise ModelFileError("missing", column=missing)
-    n_joints = file_int(data["n_joints"], "n_joints", 1, MAX_JOINTS)
-    parameters = file_floats(data["parameters"], "parameters")
-    if parameters.ndim != 1:
-        raise ModelFileError("expected a flat list of numbers", column="parameters")
-    return n_joints, parameters
+def _samples(qd: np.ndarray) -> np.ndarray:
+    """``qd`` as a C-contiguous (N, n) float array."""
+    return np.ascontiguousarray(np.atleast_2d(np.asarray(qd, dtype=float)))
 
 
 def _built(build: Callable[[], FrictionModel]) -> Any:

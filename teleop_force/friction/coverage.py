@@ -24,9 +24,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, map_coordinates
+from scipy.ndimage import gaussian_filter
 
 from teleop_force.errors import ConfigurationError, DataError, ModelFileError
+from teleop_force.friction.terms import grid_density_batch, smoothstep_values
 
 #: Most cells one joint's grid may have (a bad region or cell size cannot allocate gigabytes).
 MAX_GRID_CELLS = 1_000_000
@@ -88,9 +89,9 @@ class CoverageConfig:
 
 
 def smoothstep(s: np.ndarray) -> np.ndarray:
-    """``3 s^2 - 2 s^3`` of ``s`` clipped to [0, 1]."""
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
+    """``3 s^2 - 2 s^3`` of ``s`` clipped to [0, 1] (``terms.smoothstep``)."""
+    s = np.asarray(s, dtype=float)
+    return smoothstep_values(np.ascontiguousarray(s).reshape(-1)).reshape(s.shape)
 
 
 @dataclass(frozen=True)
@@ -221,16 +222,23 @@ class CoverageMap:
         return cached
 
     def density(self, qd: np.ndarray, joint: int) -> np.ndarray:
-        """Smoothed samples per cell around ``qd`` (N x n) for ``joint`` -> (N,)."""
-        qd = self._check(qd)
+        """Smoothed samples per cell around ``qd`` (N x n) for ``joint`` -> (N,).
+
+        Computed by :func:`~teleop_force.friction.terms.grid_density` at every sample.
+        """
+        qd = np.ascontiguousarray(self._check(qd))
+        inputs, lo, cell, shape = self.grid_geometry(joint)
+        values = np.ascontiguousarray(self.density_grid(joint)).reshape(-1)
+        return grid_density_batch(qd, inputs, lo, cell, shape, values)
+
+    def grid_geometry(self, joint: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Return ``(inputs, lo, cell, shape)`` of ``joint``'s grid as arrays (compiled terms)."""
         g = self._grids[joint]
-        coords = (qd[:, list(g.inputs)] - g.lo) / g.cell - 0.5
-        coords = np.where(np.isfinite(coords), coords, -1e9)
-        return np.maximum(
-            map_coordinates(
-                self.density_grid(joint), coords.T, order=1, mode="grid-constant", cval=0.0
-            ),
-            0.0,
+        return (
+            np.asarray(g.inputs, dtype=np.int64),
+            np.ascontiguousarray(g.lo, dtype=float),
+            np.ascontiguousarray(g.cell, dtype=float),
+            np.asarray(g.shape, dtype=np.int64),
         )
 
     def trust(self, qd: np.ndarray) -> np.ndarray:
@@ -273,40 +281,15 @@ class CoverageMap:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoverageMap:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.base import FILE_ERRORS, file_error, file_floats, file_int
+        from teleop_force.friction.file_schema import CoverageEntry
+        from teleop_force.schema import read_entry
 
-        if not isinstance(data, dict):
-            raise ModelFileError(f"expected an object, got {type(data).__name__}")
-        field = "config"
+        entry = read_entry(data, CoverageEntry)
+        grids = entry.grids
         try:
-            config_value = data["config"]
-            if not isinstance(config_value, dict):
-                raise ModelFileError("expected an object", column=field)
-            config = CoverageConfig(**config_value)
-            field = "grids"
-            grids = data["grids"]
-            if not isinstance(grids, list):
-                raise ModelFileError("expected a list of grids", column=field)
-            inputs, counts = [], []
-            lows: list[np.ndarray] = []
-            highs: list[np.ndarray] = []
-            for j, grid in enumerate(grids):
-                field = f"grids[{j}]"
-                if not isinstance(grid, dict):
-                    raise ModelFileError("expected an object", column=field)
-                field = f"grids[{j}].inputs"
-                if not isinstance(grid["inputs"], list):
-                    raise ModelFileError("expected a list of joint indices", column=field)
-                inputs.append([file_int(i, field, 0, 255) for i in grid["inputs"]])
-                for key, out in (("x_min_rad_s", lows), ("x_max_rad_s", highs)):
-                    field = f"grids[{j}].{key}"
-                    out.append(file_floats(grid[key], field))
-                field = f"grids[{j}].counts"
-                values = file_floats(grid["counts"], field)
-                if np.any(values < 0):
-                    raise ModelFileError("sample counts must be >= 0", column=field)
-                counts.append(values)
-            field = "grids"
-            return cls(inputs, lows, highs, config, counts)
-        except FILE_ERRORS as exc:
-            raise file_error(exc, field, "coverage map") from None
+            return cls(
+                [g.inputs for g in grids], [g.x_min_rad_s for g in grids],
+                [g.x_max_rad_s for g in grids], entry.config, [np.array(g.counts) for g in grids],
+            )  # fmt: skip
+        except (ValueError, ArithmeticError) as exc:  # ConfigurationError: sizes, regions...
+            raise ModelFileError(f"bad coverage map: {exc}", column="grids") from None

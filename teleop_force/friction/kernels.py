@@ -7,7 +7,7 @@ of one joint network on *every* sample, runs the first-order low-pass filter
 ``y_k[t] = a_t y_k[t-1] + (1 - a_t) psi_k(x[t])`` on every sample, and returns the filtered
 rows asked for (every ``row_stride``-th), in one pass over the samples, without the ``(N, P)``
 temporaries of the NumPy version. It equals :func:`~teleop_force.friction.wavelet_network.psi_block`
-followed by :func:`~teleop_force.identification.lowpass.lowpass_batch` up to the approximations
+followed by :func:`~teleop_force.lowpass.lowpass_batch` up to the approximations
 below (the
 tests compare them on random networks: within 1e-13 of the largest value).
 
@@ -48,11 +48,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from typing import Any
 
-import numba
 import numpy as np
+
+from teleop_force.compiled import njit_cached
+from teleop_force.friction.terms import mexican_hat_r2
 
 #: Wavelets are 0 beyond this squared normalised distance (``|psi| < 3.4e-16`` of its peak).
 R2_CUT = 80.0
@@ -60,45 +60,16 @@ R2_CUT = 80.0
 FLUSH = 1e-150
 #: The filter's scale ``A`` is folded into the state when it falls below this.
 _A_MIN = 1e-100
-_LOG2E = 1.4426950408889634
-_LN2_HI = 6.93147180369123816490e-01
-_LN2_LO = 1.90821492927058770002e-10
 
 
-def _jit(**options: Any) -> Callable[[Callable[..., Any]], Any]:
-    """``numba.njit(cache=True, **options)``; without the disk cache where none can be written."""
-
-    def wrap(fn: Callable[..., Any]) -> Any:
-        try:
-            return numba.njit(cache=True, **options)(fn)
-        except RuntimeError:  # numba found no writable cache location
-            return numba.njit(cache=False, **options)(fn)
-
-    return wrap
+#: ``numba.njit(cache=True, ...)`` with the in-memory fallback (:mod:`teleop_force.compiled`).
+_jit = njit_cached
 
 
 @_jit(nogil=True, fastmath={"contract"})
 def _psi(r2: float, amp: float, cut: float) -> float:  # pragma: no cover - compiled
-    """``amp (1 - r2) exp(-r2 / 2)`` for ``r2 < cut``, else 0 (see the module docstring)."""
-    h = max(-0.5 * r2, -708.0)
-    fn = math.floor(h * _LOG2E + 0.5)
-    r = (h - fn * _LN2_HI) - fn * _LN2_LO
-    q = 1.0 / 6227020800.0
-    q = q * r + 1.0 / 479001600.0
-    q = q * r + 1.0 / 39916800.0
-    q = q * r + 1.0 / 3628800.0
-    q = q * r + 1.0 / 362880.0
-    q = q * r + 1.0 / 40320.0
-    q = q * r + 1.0 / 5040.0
-    q = q * r + 1.0 / 720.0
-    q = q * r + 1.0 / 120.0
-    q = q * r + 1.0 / 24.0
-    q = q * r + 1.0 / 6.0
-    q = q * r + 0.5
-    q = q * r + 1.0
-    q = q * r + 1.0
-    two_n = np.int64((np.int64(fn) + 1023) << 52).view(np.float64)
-    psi = amp * (1.0 - r2) * (q * two_n)
+    """Return the Mexican hat (``terms.mexican_hat_r2``) for ``r2 < cut``, else 0."""
+    psi = mexican_hat_r2(r2, amp)
     return psi if r2 < cut else 0.0
 
 

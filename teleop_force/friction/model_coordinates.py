@@ -27,14 +27,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction.base import (
-    FILE_ERRORS,
-    MAX_JOINTS,
-    FrictionModel,
-    file_error,
-    file_floats,
-    file_int,
-)
+from teleop_force.friction.base import MAX_JOINTS, FrictionModel
+from teleop_force.friction.terms import term_table_torque
+from teleop_force.schema import read_entry
 
 #: Most model joints (coupling rows) a model file may declare.
 MAX_MODEL_JOINTS = 4 * MAX_JOINTS
@@ -86,7 +81,8 @@ class ModelCoordinateFriction(FrictionModel):
         #: Coupling rows whose velocities carry a friction law, one per distinct direction.
         self.axis_rows = distinct_axes(coupling)
         #: Those rows (``n_axes x n``): axis ``a``'s velocity is ``axes[a] @ qd``.
-        self.axes = coupling[list(self.axis_rows)]
+        self.axes = np.ascontiguousarray(coupling[list(self.axis_rows)])
+        self.axes.setflags(write=False)
         super().__init__(n, parameters)
 
     @property
@@ -117,15 +113,15 @@ class ModelCoordinateFriction(FrictionModel):
 
     def torque(self, qd: np.ndarray) -> np.ndarray:
         """Friction torque ``T^T f(T qd)`` [N m] ((n,) -> (n,), or (N, n) -> (N, n))."""
-        qd = np.asarray(qd, dtype=float)
-        single = qd.ndim == 1
-        batch = qd.reshape(1, -1) if single else qd
-        if batch.ndim != 2 or batch.shape[1] != self.n_joints:
-            raise ModelError(
-                f"{self.kind}: expected {self.n_joints} velocities, got {batch.shape[-1]}"
-            )
-        out = self.axis_torque(batch) @ self.axes
-        return out[0] if single else out
+        return term_table_torque(qd, self.axes, self.axes, self.parameters, self.kind)
+
+    def term_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, reach)`` of the terms (:mod:`teleop_force.friction.terms`): one per axis.
+
+        Axis ``a``'s velocity is ``axes[a] @ qd`` and its torque reaches the motors as
+        ``axes[a]`` (``T^T``).
+        """
+        return self.axes, self.axes
 
     def basis(self, joint: int, qd: np.ndarray) -> np.ndarray:
         """Not available: a parameter acts on several joints (use :meth:`regressor`)."""
@@ -181,32 +177,22 @@ class ModelCoordinateFriction(FrictionModel):
         The coupling must be an ``n_model x n_joints`` matrix of finite numbers with full
         column rank, the parameters two finite numbers per distinct row direction.
         """
-        if not isinstance(data, dict):
-            raise ModelFileError(f"expected an object, got {type(data).__name__}")
-        field = "n_joints"
+        from teleop_force.friction.file_schema import ModelCoordinateEntry
+
+        entry = read_entry(data, ModelCoordinateEntry)
         try:
-            n_joints = file_int(data["n_joints"], field, 1, MAX_JOINTS)
-            field = "coupling"
-            coupling = file_floats(data["coupling"], field)
-            if coupling.ndim != 2 or coupling.shape[1] != n_joints:
-                raise ModelFileError(
-                    f"expected rows of {n_joints} numbers, got shape {coupling.shape}"
-                )
-            if not 1 <= coupling.shape[0] <= MAX_MODEL_JOINTS:
-                raise ModelFileError(
-                    f"expected 1..{MAX_MODEL_JOINTS} rows, got {coupling.shape[0]}"
-                )
-            model = cls(coupling)
-            field = "parameters"
-            parameters = file_floats(data["parameters"], field)
-            if parameters.shape != model.parameters.shape:
-                raise ModelFileError(
-                    f"expected {model.parameters.size} numbers (2 per distinct coupling"
-                    f" direction), got shape {parameters.shape}"
-                )
-            model.parameters = parameters.copy()
-        except FILE_ERRORS as exc:
-            raise file_error(exc, field, "model-coordinate friction") from None
+            model = cls(np.array(entry.coupling))
+        except (ValueError, ArithmeticError) as exc:  # ModelError: rank, parallel rows...
+            raise ModelFileError(
+                f"bad model-coordinate friction: {exc}", column="coupling"
+            ) from None
+        if len(entry.parameters) != model.parameters.size:
+            raise ModelFileError(
+                f"expected {model.parameters.size} numbers (2 per distinct coupling"
+                f" direction), got {len(entry.parameters)}",
+                column="parameters",
+            )
+        model.parameters = np.array(entry.parameters)
         return model
 
     def _not_per_joint(self) -> str:

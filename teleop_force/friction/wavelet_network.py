@@ -45,16 +45,16 @@ from typing import Any, ClassVar
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, ModelError, ModelFileError
-from teleop_force.friction.base import (
-    FILE_ERRORS,
-    MAX_JOINTS,
-    FrictionModel,
-    file_error,
-    file_floats,
-    file_int,
-)
+from teleop_force.friction.base import FILE_ERRORS, FrictionModel, file_error
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageMap
+from teleop_force.friction.terms import (
+    mexican_hat_values,
+    pool_wavelets,
+    wavelet_block,
+    wavelet_network_torque_into,
+)
+from teleop_force.schema import built_by, read_entry
 
 A0_DEFAULT = 2.0
 B0_DEFAULT = 1.0
@@ -68,10 +68,13 @@ MAX_INPUTS = 8
 
 
 def mexican_hat(x: np.ndarray) -> np.ndarray:
-    """Mother wavelet ``psi(x) = (1 - |x|^2) exp(-|x|^2 / 2)``, norm over the last axis."""
+    """Mother wavelet ``psi(x) = (1 - |x|^2) exp(-|x|^2 / 2)``, norm over the last axis.
+
+    Evaluated by :func:`~teleop_force.friction.terms.mexican_hat_r2`, the one definition.
+    """
     x = np.asarray(x, dtype=float)
     r2 = np.sum(x * x, axis=-1)
-    return (1.0 - r2) * np.exp(-0.5 * r2)
+    return mexican_hat_values(np.ascontiguousarray(r2).reshape(-1)).reshape(r2.shape)
 
 
 def wavelet(
@@ -90,29 +93,17 @@ def psi_block(
     inv_scale: np.ndarray,
     amplitude: np.ndarray,
 ) -> np.ndarray:
-    """Vectorised wavelets of one joint: ``x`` (N, d) -> (N, P).
+    """Wavelets of one joint: ``x`` (N, d) -> (N, P) (compiled, :func:`wavelet_block`).
 
     ``centre_scaled`` (P, d) is ``centre / scale``, ``inv_scale`` (P,) is ``a0^-m`` and
-    ``amplitude`` (P,) is ``a0^(-d m/2)``; two (N, P) buffers are allocated, every pass is
-    in place (12 passes over them for d = 2).
+    ``amplitude`` (P,) is ``a0^(-d m/2)``.
     """
-    n, p = x.shape[0], inv_scale.shape[0]
-    r2 = np.empty((n, p))
-    np.multiply.outer(x[:, 0], inv_scale, out=r2)
-    r2 -= centre_scaled[:, 0]
-    r2 *= r2
-    u = np.empty((n, p))
-    for i in range(1, x.shape[1]):
-        np.multiply.outer(x[:, i], inv_scale, out=u)
-        u -= centre_scaled[:, i]
-        u *= u
-        r2 += u
-    np.multiply(r2, -0.5, out=u)
-    np.exp(u, out=u)
-    r2 -= 1.0  # amp (1 - r2) env = -amp (r2 - 1) env, bit for bit
-    r2 *= u
-    r2 *= -amplitude
-    return r2
+    return wavelet_block(
+        np.ascontiguousarray(x, dtype=float),
+        np.ascontiguousarray(centre_scaled, dtype=float),
+        np.ascontiguousarray(inv_scale, dtype=float),
+        np.ascontiguousarray(amplitude, dtype=float),
+    )
 
 
 @dataclass(frozen=True)
@@ -184,33 +175,9 @@ class WaveletJointSpec:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WaveletJointSpec:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        if not isinstance(data, dict):
-            raise ModelFileError(f"expected an object, got {type(data).__name__}")
-        for key in ("inputs", "x_min_rad_s", "x_max_rad_s", "m_min", "m_max", "mu", "theta"):
-            if key not in data:
-                raise ModelFileError("missing", column=key)
-        if not isinstance(data["inputs"], list):
-            raise ModelFileError("expected a list of joint indices", column="inputs")
-        inputs = tuple(file_int(v, "inputs", 0, MAX_JOINTS - 1) for v in data["inputs"])
-        bounds = {}
-        for key in ("x_min_rad_s", "x_max_rad_s", "mu", "theta"):
-            value = file_floats(data[key], key)
-            if value.ndim != (0 if key in ("mu", "theta") else 1):
-                raise ModelFileError("wrong shape", column=key)
-            bounds[key] = value
-        dilations = {k: file_int(data[k], k, -1000, 1000) for k in ("m_min", "m_max")}
-        try:
-            return cls(
-                inputs=inputs,
-                x_min_rad_s=tuple(float(v) for v in bounds["x_min_rad_s"]),
-                x_max_rad_s=tuple(float(v) for v in bounds["x_max_rad_s"]),
-                m_min=dilations["m_min"],
-                m_max=dilations["m_max"],
-                mu=float(bounds["mu"]),
-                theta=float(bounds["theta"]),
-            )
-        except ConfigurationError as exc:
-            raise ModelFileError(str(exc)) from None
+        from teleop_force.friction.file_schema import WaveletJointSpecEntry
+
+        return read_entry(data, WaveletJointSpecEntry).spec()
 
 
 def omni_wavelet_specs(
@@ -437,14 +404,15 @@ class WaveletPool:
 
     def evaluate(self, qd: np.ndarray, indices: np.ndarray) -> np.ndarray:
         """Raw wavelet values ``psi_k(qd)`` (N, P) for global ``indices`` (any joints)."""
-        qd = np.atleast_2d(np.asarray(qd, dtype=float))
-        ext = np.concatenate((qd, np.zeros((qd.shape[0], 1))), axis=1)
+        qd = np.ascontiguousarray(np.atleast_2d(np.asarray(qd, dtype=float)))
         indices = np.asarray(indices, dtype=np.int64)
-        u = ext[:, self.input_index[indices]]
-        u *= self.inv_scale[indices][None, :, None]
-        u -= self.centre_scaled[indices][None, :, :]
-        r2 = np.einsum("kpd,kpd->kp", u, u)
-        return self.amplitude[indices] * (1.0 - r2) * np.exp(-0.5 * r2)
+        return pool_wavelets(
+            qd,
+            np.ascontiguousarray(self.input_index[indices]),
+            np.ascontiguousarray(self.centre_scaled[indices]),
+            np.ascontiguousarray(self.inv_scale[indices]),
+            np.ascontiguousarray(self.amplitude[indices]),
+        )
 
     def label(self, index: int) -> str:
         """Human-readable ``m=..,n=(..)`` of a global index."""
@@ -454,29 +422,23 @@ class WaveletPool:
 
 
 class _SingleSampleTorque:
-    """The active wavelets of a :class:`WaveletNetwork` evaluated at one sample, fast.
+    """The active wavelets of a :class:`WaveletNetwork` as a wavelet table, for one sample.
 
-    With ``h_k = -|x a0^-m_k - n_k b0|^2 / 2``, a quadratic form of the velocities,
-    ``h = f(qd) @ Q`` for the features ``f = [qd_i^2 (used inputs), qd_i (used inputs), 1]``,
-    and ``psi_k = amp_k (1 + 2 h_k) exp(h_k)``. So the torque is ``[e, h e] @ [[W], [2 W]]``
-    with ``e = exp(h)`` and ``W[k, j] = amp_k c_k [k is joint j's]``: four NumPy calls.
-    Wavelets that several joints' networks share (same inputs, ``m`` and ``n``: the Omni's
-    joints 2 and 3 read the same velocities) are evaluated once, with one weight per joint.
-    The expanded square loses ~1e-16 of ``|x a0^-m|^2`` to rounding (~1e-14 N m on the Omni).
+    The table is what :func:`~teleop_force.friction.terms.wavelet_network_torque_into`
+    evaluates: one row per distinct wavelet with its inputs, ``centre_scaled``, ``inv_scale``
+    and its weight ``amplitude * coefficient`` on every joint. Wavelets that several joints'
+    networks share (same inputs, ``m`` and ``n``: the Omni's joints 2 and 3 read the same
+    velocities) are one row with a weight per joint.
     """
 
     def __init__(self, network: WaveletNetwork) -> None:
-        """Build the quadratic form of ``network``'s current active set."""
+        """Build the table of ``network``'s active set (weights: :meth:`load_coefficients`)."""
         pool = network.pool
         idx = network.active_global_indices()
         self.structure_version = network.structure_version
         self.coef_version = -1
         self.n = network.n_joints
-        used = sorted({i for spec in network.specs for i in spec.inputs})
-        self.used = used
-        row = {i: r for r, i in enumerate(used)}
-        u = len(used)
-        # one column per distinct wavelet (inputs, m, n); `slot[k]` is active wavelet k's
+        # one row per distinct wavelet (inputs, m, n); `slot[k]` is active wavelet k's
         slots: dict[tuple[object, ...], int] = {}
         slot = np.empty(idx.size, dtype=np.int64)
         first: list[int] = []
@@ -488,51 +450,30 @@ class _SingleSampleTorque:
                 first.append(g)
             slot[k] = slots[key]
         unique = np.asarray(first, dtype=np.int64)
-        p = unique.size
-        quad = np.zeros((2 * u + 1, p))
-        cols = np.arange(p)
-        inv = pool.inv_scale[unique]
-        for axis in range(pool.dmax):
-            inputs = pool.input_index[unique, axis]
-            real = inputs < pool.n_inputs
-            rows = np.asarray([row.get(int(i), 0) for i in inputs[real]], dtype=np.int64)
-            cs = pool.centre_scaled[unique, axis]
-            np.add.at(quad, (rows, cols[real]), -0.5 * inv[real] * inv[real])
-            np.add.at(quad, (u + rows, cols[real]), inv[real] * cs[real])
-            quad[2 * u] -= 0.5 * cs * cs
-        self.quad = quad
+        d = pool.dmax
+        inputs = pool.input_index[unique]
+        self.inputs = np.ascontiguousarray(np.where(inputs < pool.n_inputs, inputs, -1))
+        self.table = np.zeros((unique.size, d + 1 + self.n))
+        self.table[:, :d] = pool.centre_scaled[unique]
+        self.table[:, d] = pool.inv_scale[unique]
+        self._weights = d + 1
         self.idx = idx
         self.slot = slot
         self.joint = pool.joint[idx]
         self.amplitude = pool.amplitude[idx]
-        self.weights = np.zeros((2 * p, self.n))
-        self.features = np.zeros(2 * u + 1)
-        self.features[2 * u] = 1.0
-        self.h = np.zeros(p)
-        self.stacked = np.zeros(2 * p)
-        self.e = self.stacked[:p]
-        self.he = self.stacked[p:]
 
     def load_coefficients(self, network: WaveletNetwork) -> None:
         """Take ``network``'s current coefficients."""
-        p = self.h.size
-        w = np.zeros((p, self.n))
+        w = np.zeros((self.table.shape[0], self.n))
         np.add.at(w, (self.slot, self.joint), self.amplitude * network.coefficients_at(self.idx))
-        self.weights[:p] = w
-        self.weights[p:] = 2.0 * w
+        self.table[:, self._weights :] = w
         self.coef_version = network._coef_version
 
     def __call__(self, qd: Sequence[float] | np.ndarray) -> np.ndarray:
         """Torque per joint at ``qd``."""
-        values = qd.tolist() if isinstance(qd, np.ndarray) else qd
-        x = [float(values[i]) for i in self.used]
-        self.features[: 2 * len(x)] = [v * v for v in x] + x
-        if self.idx.size == 0:
-            return np.zeros(self.n)
-        np.dot(self.features, self.quad, out=self.h)
-        np.exp(self.h, out=self.e)
-        np.multiply(self.h, self.e, out=self.he)
-        return self.stacked @ self.weights
+        out = np.zeros(self.n)
+        wavelet_network_torque_into(np.asarray(qd, dtype=float), self.inputs, self.table, out)
+        return out
 
 
 class WaveletNetwork(FrictionModel):
@@ -765,16 +706,28 @@ class WaveletNetwork(FrictionModel):
     def torque_one(self, qd: Sequence[float] | np.ndarray) -> np.ndarray:
         """Friction torque [N m] at one velocity sample ``qd`` (n,) -> (n,): the streaming path.
 
-        Equals :meth:`torque` up to rounding (the squared distances come from one matrix
-        product, see :class:`_SingleSampleTorque`); its per-call cost is a handful of NumPy
-        calls over the active wavelets, whatever their number.
+        Equals :meth:`torque` up to rounding (the same compiled wavelet, summed in another
+        order, see :class:`_SingleSampleTorque`).
         """
+        return self._single_sample()(qd)
+
+    def _single_sample(self) -> _SingleSampleTorque:
         kernel = self._single
         if kernel is None or kernel.structure_version != self._structure_version:
             kernel = self._single = _SingleSampleTorque(self)
         if kernel.coef_version != self._coef_version:
             kernel.load_coefficients(self)
-        return kernel(qd)
+        return kernel
+
+    def streaming_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(inputs, table)`` of the active wavelets, up to date, for one sample.
+
+        The arguments of :func:`~teleop_force.friction.terms.wavelet_network_torque_into`
+        (see :class:`_SingleSampleTorque`); the arrays are replaced, not changed, when the
+        structure changes, and their weights rewritten when the coefficients do.
+        """
+        kernel = self._single_sample()
+        return kernel.inputs, kernel.table
 
     # -- coverage-aware blending -------------------------------------------------------------
 
@@ -831,73 +784,24 @@ class WaveletNetwork(FrictionModel):
         once), one coefficient per active wavelet, the fallback and coverage map of the same
         joints.
         """
-        if not isinstance(data, dict):
-            raise ModelFileError(f"expected an object, got {type(data).__name__}")
-        field = "n_joints"
+        from teleop_force.friction.file_schema import WaveletNetworkEntry
+
+        entry = read_entry(data, WaveletNetworkEntry, dec_hook=built_by())
+        specs = [joint.spec() for joint in entry.joints]
+        field = "joints"
         try:
-            n_joints = file_int(data["n_joints"], field, 1, MAX_JOINTS)
-            field = "joints"
-            entries = data["joints"]
-            if not isinstance(entries, list) or len(entries) != n_joints:
-                raise ModelFileError(f"expected {n_joints} joint networks")
-            specs = []
-            for j, entry in enumerate(entries):
-                field = f"joints[{j}]"
-                specs.append(_nested(field, lambda e=entry: WaveletJointSpec.from_dict(e)))
-                if max(specs[-1].inputs) >= n_joints:
-                    field = f"joints[{j}].inputs"
-                    raise ModelFileError(f"velocity index {max(specs[-1].inputs)} >= {n_joints}")
-            scalars = {}
-            for key, default in (("a0", A0_DEFAULT), ("b0", B0_DEFAULT)):
-                field = key
-                value = file_floats(data.get(key, default), key)
-                if value.ndim != 0:
-                    raise ModelFileError("expected a number")
-                scalars[key] = float(value)
-            field = "edge_ring"
-            edge_ring = data.get("edge_ring", True)
-            if not isinstance(edge_ring, bool):
-                raise ModelFileError(f"expected true or false, got {edge_ring!r}")
-            field = "fallback"
-            fallback = data.get("fallback")
-            if fallback is not None:
-                fallback = _nested(field, lambda: CoupledCoulombViscous.from_dict(fallback))
-            field = "coverage"
-            coverage = data.get("coverage")
-            if coverage is not None:
-                coverage = _nested(field, lambda: CoverageMap.from_dict(coverage))
-                field = "coverage.grids"
-                if coverage.n_joints != n_joints:
-                    raise ModelFileError(f"{coverage.n_joints} grids for {n_joints} joints")
-                for j in range(n_joints):
-                    field = f"coverage.grids[{j}].inputs"
-                    if max(coverage.grid_inputs(j)) >= n_joints:
-                        raise ModelFileError(f"reads a velocity beyond joint {n_joints}")
-            field = "joints"
             net = cls(
-                n_joints,
-                specs,
-                a0=scalars["a0"],
-                b0=scalars["b0"],
-                edge_ring=edge_ring,
-                fallback=fallback,
-                coverage=coverage,
-            )
-            if coverage is None:
+                entry.n_joints, specs, a0=entry.a0, b0=entry.b0, edge_ring=entry.edge_ring,
+                fallback=entry.fallback, coverage=entry.coverage,
+            )  # fmt: skip
+            if entry.coverage is None:
                 net.coverage = None
-            for j, entry in enumerate(entries):
+            for j, joint in enumerate(entry.joints):
                 d = specs[j].d
                 field = f"joints[{j}].active"
-                if "active" not in entry:
-                    raise ModelFileError("missing")
-                active = file_floats(entry["active"], field)
-                if active.size == 0:
-                    active = active.reshape(0, 1 + d)
-                if active.ndim != 2 or active.shape[1] != 1 + d:
+                if any(len(row) != 1 + d for row in joint.active):
                     raise ModelFileError(f"expected a list of [m, n1..n{d}] rows")
-                if np.any(active != np.round(active)) or np.any(np.abs(active) > 2.0**52):
-                    raise ModelFileError("wavelet indices must be integers")
-                active = active.astype(np.int64)
+                active = np.array(joint.active, dtype=np.int64).reshape(-1, 1 + d)
                 idx = net.pool.index_of(j, active[:, 0], active[:, 1:])
                 if np.any(idx < 0):
                     row = int(np.flatnonzero(idx < 0)[0])
@@ -905,21 +809,9 @@ class WaveletNetwork(FrictionModel):
                 if np.unique(idx).size != idx.size:
                     raise ModelFileError("a wavelet is listed twice")
                 field = f"joints[{j}].coefficients"
-                if "coefficients" not in entry:
-                    raise ModelFileError("missing")
-                coefficients = file_floats(entry["coefficients"], field)
-                if coefficients.shape != (idx.size,):
+                if len(joint.coefficients) != idx.size:
                     raise ModelFileError(f"expected {idx.size} numbers, one per active wavelet")
-                net.set_structure(j, idx, coefficients)
+                net.set_structure(j, idx, np.array(joint.coefficients))
         except FILE_ERRORS as exc:
             raise file_error(exc, field, "wavelet-network model") from None
         return net
-
-
-def _nested(field: str, build: Any) -> Any:
-    """``build()``; its ModelFileError re-raised with the column prefixed by ``field``."""
-    try:
-        return build()
-    except ModelFileError as exc:
-        column = field if exc.column is None else f"{field}.{exc.column}"
-        raise ModelFileError(exc.problem, column=column) from None

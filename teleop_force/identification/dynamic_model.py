@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 
 from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction import friction_from_dict
-from teleop_force.friction.base import MAX_JOINTS, FrictionModel, file_floats, file_int
+from teleop_force.friction.base import FrictionModel
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.regressor import BaseParameters
 from teleop_force.robots.description import RobotDescription
 from teleop_force.robots.registry import resolve_robot
+from teleop_force.schema import read_entry
 
 MODEL_FORMAT = "teleop-force-model"
 MODEL_VERSION = 1
@@ -135,58 +135,26 @@ class DynamicModel:
                 path=source,
                 column="version",
             )
-        current = "robot"
+        from teleop_force.identification.model_file_schema import MODEL_FILE_HOOK, ModelFileEntry
+
         try:
-            robot = data["robot"]
-            if not isinstance(robot, str) or not robot:
-                raise ModelFileError("expected a robot name or description file")
-            current = "n_joints"
-            n_joints = file_int(data["n_joints"], current, 1, MAX_JOINTS)
-            current = "filter"
-            config = _filter_config(data["filter"])
-            current = "base"
-            base_value = data["base"]
-            base = None if base_value is None else BaseParameters.from_dict(base_value)
-            current = "base_values"
-            values = _vector(data["base_values"], current, 0 if base is None else base.count)
-            current = "base_std"
-            std = data.get("base_std")
-            if std is None:
-                std = np.zeros_like(values)
-            else:
-                std = _vector(std, current, values.size, finite=False)
-            current = "friction"
-            friction = friction_from_dict(data["friction"])
-            if friction.n_joints != n_joints:
-                raise ModelFileError(
-                    f"friction model has {friction.n_joints} joints, expected {n_joints}"
-                )
-            current = "offsets_nm"
-            offsets = data.get("offsets_nm")
-            offsets = np.zeros(n_joints) if offsets is None else _vector(offsets, current, n_joints)
-            current = "effects"
-            effects = _effects(data.get("effects", []), n_joints)
-            current = "notes"
-            notes = data.get("notes", {})
-            if not isinstance(notes, dict):
-                raise ModelFileError(f"expected an object, got {type(notes).__name__}")
-            current = "base"
+            entry = read_entry(data, ModelFileEntry, dec_hook=MODEL_FILE_HOOK)
+            base = None if entry.base is None else entry.base.parameters()
             if base is not None:
-                _check_base_fits_robot(base, robot, n_joints)
-            current = "model"
-            return cls(
-                robot, n_joints, config, base, values, std, friction, offsets, effects, dict(notes)
-            )
+                _check_base_fits_robot(base, entry.robot, entry.n_joints)
         except ModelFileError as exc:
-            column = current if exc.column is None else f"{current}.{exc.column}"
-            if exc.column is not None and exc.column.split(".")[0].split("[")[0] == current:
-                column = exc.column
-            raise ModelFileError(exc.problem, path=source, row=exc.row, column=column) from None
-        except KeyError as exc:
-            raise ModelFileError(f"missing {exc}", path=source, column=current) from None
-        except (TypeError, ValueError, ArithmeticError, LookupError) as exc:
-            # ModelError and ConfigurationError are ValueErrors: their message names the problem
-            raise ModelFileError(f"bad value: {exc}", path=source, column=current) from None
+            raise ModelFileError(exc.problem, path=source, row=exc.row, column=exc.column) from None
+        n = entry.n_joints
+        offsets = np.zeros(n) if entry.offsets_nm is None else np.array(entry.offsets_nm)
+        values = np.array(entry.base_values)
+        std = np.zeros_like(values) if entry.base_std is None else np.array(entry.base_std)
+        try:
+            return cls(
+                entry.robot, n, entry.filter.config(), base, values, std, entry.friction,
+                offsets, tuple(entry.effects), dict(entry.notes),
+            )  # fmt: skip
+        except ModelError as exc:
+            raise ModelFileError(f"bad value: {exc}", path=source, column="model") from None
 
     @classmethod
     def load(cls, path: str | Path) -> DynamicModel:
@@ -208,58 +176,6 @@ class DynamicModel:
         return cls.from_dict(data, str(path))
 
 
-def _vector(value: object, field: str, size: int, finite: bool = True) -> np.ndarray:
-    """Read a flat list of ``size`` numbers (finite unless told); ModelFileError names ``field``."""
-    out = file_floats(value, field, finite=finite)
-    if out.shape != (size,):
-        raise ModelFileError(f"expected {size} numbers, got shape {out.shape}", column=field)
-    return out
-
-
-def _filter_config(value: object) -> FilterConfig:
-    """Read the ``filter`` object: known keys only, finite numbers within FilterConfig's ranges."""
-    if not isinstance(value, dict):
-        raise ModelFileError(f"expected an object, got {type(value).__name__}")
-    for key, item in value.items():
-        number = file_floats(item, str(key))
-        if number.ndim != 0:
-            raise ModelFileError("expected a number", column=str(key))
-    try:
-        return FilterConfig(**value)
-    except TypeError as exc:  # an unknown key
-        raise ModelFileError(str(exc)) from None
-    except ValueError as exc:  # ConfigurationError: out of range
-        raise ModelFileError(str(exc)) from None
-
-
-def _effects(value: object, n_joints: int) -> tuple[Any, ...]:
-    """Read the found effects: valid entries acting on a joint of the model, finite numbers."""
-    from teleop_force.identification.effects import effect_from_dict
-
-    if not isinstance(value, list):
-        raise ModelFileError(f"expected a list, got {type(value).__name__}")
-    out = []
-    for i, entry in enumerate(value):
-        field = f"effects[{i}]"
-        try:
-            effect = effect_from_dict(entry)
-        except (KeyError, TypeError, ValueError, ArithmeticError, LookupError) as exc:
-            raise ModelFileError(f"bad effect: {exc}", column=field) from None
-        joint = getattr(effect.spec, "joint", None)
-        if isinstance(joint, bool) or not isinstance(joint, int) or not 0 <= joint < n_joints:
-            raise ModelFileError(
-                f"acts on joint {joint!r}, outside 0..{n_joints - 1}", column=field
-            )
-        file_floats(effect.coefficients, f"{field}.coefficients")
-        if effect.reach is not None and effect.reach.size != n_joints:
-            raise ModelFileError(
-                f"reach has {effect.reach.size} weights, the model has {n_joints} joints",
-                column=f"{field}.reach",
-            )
-        out.append(effect)
-    return tuple(out)
-
-
 def _check_base_fits_robot(base: BaseParameters, robot: str, n_joints: int) -> None:
     """Check the base indexes the robot's full parameters (skipped if the robot is not found)."""
     from teleop_force.errors import TeleopForceError
@@ -273,11 +189,12 @@ def _check_base_fits_robot(base: BaseParameters, robot: str, n_joints: int) -> N
         return
     if description.n_joints != n_joints:
         raise ModelFileError(
-            f"robot {robot!r} has {description.n_joints} joints, the model {n_joints}"
+            f"robot {robot!r} has {description.n_joints} joints, the model {n_joints}",
+            column="base",
         )
     expected = len(full_parameter_names(description))
     if len(base.full_names) != expected:
         raise ModelFileError(
             f"{len(base.full_names)} full parameters, robot {robot!r} has {expected}",
-            column="full_names",
+            column="base.full_names",
         )

@@ -17,7 +17,6 @@ its model joints, at that model joint, reaching the motors through the coupling
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -25,32 +24,43 @@ from typing import Any
 import numpy as np
 
 from teleop_force.errors import ModelError
+from teleop_force.identification.effect_terms import (
+    VARIABLE_CODES,
+    EffectModulation,
+    EffectShape,
+    EffectTable,
+    EffectVariable,
+    effect_basis,
+    effects_torque,
+    variable_values_batch,
+)
 
-SHAPES = ("constant", "linear", "smooth", "periodic", "abs", "stribeck")
-MODULATIONS = ("none", "sign", "positive", "both")
-_VARIABLE = re.compile(r"^(t|q(\d+)-q(\d+)|q(\d+)|qd(\d+)|tau(\d+))$")
+SHAPES = tuple(EffectShape)
+MODULATIONS = tuple(EffectModulation)
+
+
+def _samples(values: np.ndarray) -> np.ndarray:
+    """``values`` as a C-contiguous 2-D float array."""
+    return np.ascontiguousarray(np.asarray(values, dtype=float))
+
+
+def _since_start(t_s: np.ndarray) -> np.ndarray:
+    """Time since the first sample."""
+    t = np.ascontiguousarray(np.asarray(t_s, dtype=float).reshape(-1))
+    return t - t[0] if t.size else t
 
 
 def variable_values(
     name: str, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray
 ) -> np.ndarray:
     """Values of the named variable at every sample (``t`` is time since the first sample)."""
-    match = _VARIABLE.match(name)
-    if match is None:
-        raise ModelError(f"unknown effect variable {name!r}")
-    n = q.shape[1]
-    indices = [int(g) - 1 for g in match.groups()[1:] if g is not None]
-    if any(not 0 <= i < n for i in indices):
-        raise ModelError(f"effect variable {name!r} names a joint outside 1..{n}")
-    if name == "t":
-        return np.asarray(t_s, dtype=float) - float(t_s[0])
-    if match.group(2) is not None:
-        return q[:, indices[0]] - q[:, indices[1]]
-    if match.group(4) is not None:
-        return q[:, indices[0]]
-    if match.group(5) is not None:
-        return qd[:, indices[0]]
-    return tau[:, indices[0]]
+    variable = EffectVariable.parse(name)
+    q = _samples(q)
+    variable.check_joints(q.shape[1])
+    return variable_values_batch(
+        VARIABLE_CODES[variable.kind], variable.first, variable.second,
+        _since_start(t_s), q, _samples(qd), _samples(tau),
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -76,8 +86,8 @@ class BasisSpec:
 
     joint: int
     variable: str
-    shape: str
-    modulation: str = "none"
+    shape: EffectShape | str
+    modulation: EffectModulation | str = "none"
     lo: float = 0.0
     hi: float = 1.0
     count: int = 0
@@ -86,12 +96,19 @@ class BasisSpec:
     scales: tuple[float, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        if self.shape not in SHAPES:
-            raise ModelError(f"unknown effect shape {self.shape!r}")
-        if self.modulation not in MODULATIONS:
-            raise ModelError(f"unknown effect modulation {self.modulation!r}")
-        if self.shape != "constant" and _VARIABLE.match(self.variable) is None:
-            raise ModelError(f"unknown effect variable {self.variable!r}")
+        try:
+            object.__setattr__(self, "shape", EffectShape(self.shape))
+        except ValueError:
+            raise ModelError(f"unknown effect shape {self.shape!r}") from None
+        try:
+            object.__setattr__(self, "modulation", EffectModulation(self.modulation))
+        except ValueError:
+            raise ModelError(f"unknown effect modulation {self.modulation!r}") from None
+        parsed: EffectVariable | None = None
+        if self.shape != "constant":
+            parsed = EffectVariable.parse(self.variable)
+        # the parsed variable (not a field: the model file keeps the spelling)
+        object.__setattr__(self, "_parsed_variable", parsed)
         if self.shape == "smooth" and (self.count < 2 or not self.hi > self.lo):
             raise ModelError("smooth effect needs count >= 2 and hi > lo")
         if self.shape == "periodic" and (self.harmonics < 1 or not self.frequency > 0):
@@ -99,6 +116,56 @@ class BasisSpec:
         if self.shape == "stribeck" and (not self.scales or min(self.scales) <= 0):
             raise ModelError("stribeck effect needs positive velocity scales")
         object.__setattr__(self, "scales", tuple(float(s) for s in self.scales))
+
+    @property
+    def effect_variable(self) -> EffectVariable | None:
+        """The variable, parsed (None for a ``constant`` shape, which reads none)."""
+        return self._parsed_variable  # type: ignore[attr-defined]
+
+    @property
+    def shape_count(self) -> int:
+        """Bumps (``smooth``), harmonics (``periodic``) or scales (``stribeck``); else 1."""
+        return {
+            "smooth": self.count,
+            "periodic": self.harmonics,
+            "stribeck": len(self.scales),
+        }.get(self.shape, 1)
+
+    def shape_parameters(self) -> np.ndarray:
+        """Floats of the shape: ``[lo, hi]`` (smooth), ``[frequency]`` (periodic), the scales."""
+        if self.shape == "smooth":
+            return np.array([self.lo, self.hi])
+        if self.shape == "periodic":
+            return np.array([self.frequency])
+        return np.asarray(self.scales, dtype=float)
+
+    def check_joints(self, n_joints: int) -> None:
+        """Raise ModelError if the effect acts on or reads a joint outside ``1..n_joints``."""
+        if not 0 <= self.joint < n_joints:
+            raise ModelError(f"effect on joint {self.joint + 1}, outside 1..{n_joints}")
+        if self.effect_variable is not None:
+            self.effect_variable.check_joints(n_joints)
+
+    def term_row(
+        self,
+    ) -> tuple[EffectVariable | None, EffectShape, EffectModulation, int, int, int]:
+        """``(variable, shape, modulation, joint, count, size)`` for :meth:`EffectTable.build`."""
+        return (
+            self.effect_variable, EffectShape(self.shape), EffectModulation(self.modulation),
+            self.joint, self.shape_count, self.size,
+        )  # fmt: skip
+
+    def table(
+        self, n_joints: int, coefficients: np.ndarray | None = None, reach: np.ndarray | None = None
+    ) -> EffectTable:
+        """Encode the basis for the compiled terms (ModelError: a joint outside 1..n)."""
+        self.check_joints(n_joints)
+        return EffectTable.build(
+            [self.term_row()],
+            [self.shape_parameters()],
+            [np.zeros(self.size) if coefficients is None else coefficients],
+            [np.eye(n_joints)[self.joint] if reach is None else reach],
+        )
 
     @property
     def size(self) -> int:
@@ -137,8 +204,8 @@ class BasisSpec:
     def depends_on(self) -> list[str]:
         """Variables the effect depends on (the ``depends_on`` field of the report)."""
         names: list[str] = []
-        if self.shape != "constant":
-            names += self.variable.split("-") if "-" in self.variable else [self.variable]
+        if self.effect_variable is not None:
+            names += self.effect_variable.names()
         if self.modulation != "none":
             names.append(f"qd{self.joint + 1}")
         return list(dict.fromkeys(names))
@@ -155,34 +222,12 @@ class BasisSpec:
         return f"joint {self.joint + 1}: {self.shape}({var}){mod[self.modulation]}"
 
     def basis(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Basis functions at every sample (N x size)."""
-        n_samples = q.shape[0]
-        if self.shape == "constant":
-            phi = np.ones((n_samples, 1))
-        else:
-            x = variable_values(self.variable, t_s, q, qd, tau)
-            if self.shape == "linear":
-                phi = x[:, None]
-            elif self.shape == "abs":
-                phi = np.abs(x)[:, None]
-            elif self.shape == "smooth":
-                centres = np.linspace(self.lo, self.hi, self.count)
-                width = (self.hi - self.lo) / (self.count - 1)
-                phi = np.exp(-0.5 * ((x[:, None] - centres[None, :]) / width) ** 2)
-            elif self.shape == "periodic":
-                k = np.arange(1, self.harmonics + 1) * self.frequency
-                phase = x[:, None] * k[None, :]
-                phi = np.concatenate((np.sin(phase), np.cos(phase)), axis=1)
-            else:
-                scales = np.asarray(self.scales)
-                phi = np.exp(-((x[:, None] / scales[None, :]) ** 2))
-        if self.modulation == "sign":
-            phi = phi * np.sign(qd[:, self.joint])[:, None]
-        elif self.modulation == "positive":
-            phi = phi * (qd[:, self.joint] > 0)[:, None]
-        elif self.modulation == "both":
-            phi = np.concatenate((phi, phi * np.sign(qd[:, self.joint])[:, None]), axis=1)
-        return phi
+        """Basis functions at every sample (N x size), compiled (``effect_terms``)."""
+        q = _samples(q)
+        table = self.table(q.shape[1])
+        return effect_basis(
+            table.codes[0], table.floats, _since_start(t_s), q, _samples(qd), _samples(tau)
+        )
 
 
 class FoundEffect:
@@ -235,9 +280,15 @@ class FoundEffect:
 
     def torque(self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Torque on all joints (N x n): on :attr:`joint`, or spread by :attr:`reach`."""
-        q = np.asarray(q, dtype=float)
-        value = self.spec.basis(t_s, q, qd, tau) @ self.coefficients
-        return value[:, None] * self.weights(q.shape[1])[None, :]
+        q = _samples(q)
+        table = self.table(q.shape[1])
+        return effects_torque(
+            table.codes, table.floats, _since_start(t_s), q, _samples(qd), _samples(tau)
+        )
+
+    def table(self, n_joints: int) -> EffectTable:
+        """Encode the effect for the compiled terms (coefficients and reach included)."""
+        return self.spec.table(n_joints, self.coefficients, self.weights(n_joints))
 
     def to_dict(self) -> dict[str, Any]:
         """Serialise."""
@@ -254,6 +305,18 @@ class FoundEffect:
         return out
 
 
+def effects_table(effects: Sequence[FoundEffect], n_joints: int) -> EffectTable:
+    """All ``effects`` encoded in one table, for one compiled call per sample."""
+    for effect in effects:
+        effect.spec.check_joints(n_joints)
+    return EffectTable.build(
+        [effect.spec.term_row() for effect in effects],
+        [effect.spec.shape_parameters() for effect in effects],
+        [effect.coefficients for effect in effects],
+        [effect.weights(n_joints) for effect in effects],
+    )
+
+
 def describe_reach(joint: int, reach: Sequence[float] | None) -> str:
     """Where an effect acts, for reports: ``joint 4`` or ``j2 +0.6697, j3 -0.6697, j4 +1``.
 
@@ -265,14 +328,10 @@ def describe_reach(joint: int, reach: Sequence[float] | None) -> str:
 
 
 def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
-    """Rebuild an effect from :meth:`FoundEffect.to_dict`."""
-    if not isinstance(data, dict) or data.get("kind") != "basis":
-        raise ModelError("effect entry is not a basis effect")
-    spec = dict(data["spec"])
-    spec["scales"] = tuple(spec.get("scales", ()))
-    return FoundEffect(
-        BasisSpec(**spec),
-        np.asarray(data["coefficients"], dtype=float),
-        float(data.get("explained", 0.0)),
-        None if data.get("reach") is None else np.asarray(data["reach"], dtype=float),
-    )
+    """Rebuild an effect from :meth:`FoundEffect.to_dict`; ModelFileError names a bad field."""
+    from teleop_force.identification.model_file_schema import EffectEntry
+    from teleop_force.schema import read_entry
+
+    entry = read_entry(data, EffectEntry)
+    reach = None if entry.reach is None else np.array(entry.reach)
+    return FoundEffect(entry.spec.spec(), np.array(entry.coefficients), entry.explained, reach)

@@ -5,7 +5,7 @@ Filtering ``tau = d/dt p - C^T qd + N + tau_spring + tau_f`` by ``omega / (s + o
     tau_L = D_L(Y_p) pi + L(Y_w) pi + L(tau_f)
 
 with ``D_L`` the filtered derivative
-(:func:`~teleop_force.identification.lowpass.filtered_derivative_batch`)
+(:func:`~teleop_force.lowpass.filtered_derivative_batch`)
 and ``L`` the low-pass filter.
 
 ``D_L`` is ``omega s / (s + omega)``: its gain tends to ``omega`` at high frequency, so noise in
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, DataError
-from teleop_force.identification.lowpass import (
+from teleop_force.lowpass import (
     DEFAULT_CUTOFF_HZ,
     filtered_derivative_batch,
     lowpass_batch,

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.friction import FRICTION_KINDS
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.kinds import FrictionKind
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import (
@@ -27,7 +27,7 @@ from teleop_force.identification.filtered_regressor import (
     FilteredSignals,
 )
 from teleop_force.identification.least_squares import Identification, least_squares, relative_rms
-from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.prepared import PreparedRecording, WaveletOptions, prepare
 from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.identification.rigid_body_fit import RigidBodyFitOptions, fit_rigid_body
@@ -50,17 +50,19 @@ class FitReport:
     stage_one: Identification | None = None
 
 
-def stage_one_friction(friction_kind: str, description: RobotDescription) -> FrictionModel:
+def stage_one_friction(friction_kind: FrictionKind, description: RobotDescription) -> FrictionModel:
     """Return the friction fitted with the rigid body.
 
     CV (``cv``), friction in model coordinates through the description's coupling
-    (``model-cv``), or else the coupled CV.
+    (``model-cv``), or else (``coupled-cv``, and ``wn``'s fallback) the coupled CV.
     """
-    if friction_kind == "cv":
-        return CoulombViscous(description.n_joints)
-    if friction_kind == ModelCoordinateFriction.kind:
-        return ModelCoordinateFriction(description.coupling)
-    return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
+    match friction_kind:
+        case FrictionKind.CV:
+            return CoulombViscous(description.n_joints)
+        case FrictionKind.MODEL_CV:
+            return ModelCoordinateFriction(description.coupling)
+        case _:
+            return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
 
 def _friction_regressor(friction: FrictionModel, signals: FilteredSignals) -> np.ndarray:
@@ -92,7 +94,7 @@ def _stack_regressor(
 def identify_model(
     recordings: Sequence[Recording],
     description: RobotDescription,
-    friction_kind: str = "wn",
+    friction_kind: FrictionKind = FrictionKind.WN,
     config: FilterConfig | None = None,
     wavelet: WaveletOptions | None = None,
     rigid_body: RigidBodyFitOptions | None = None,
@@ -101,12 +103,10 @@ def identify_model(
     """Identify rigid-body parameters and friction from recordings.
 
     ``offsets``: fit a constant torque per joint with the friction (the data authors'
-    Coulomb + viscous + offset); None fits them only without rigid-body terms.
+    Coulomb + viscous + offset); None fits them only without rigid-body terms. A
+    ``friction_kind`` given by its name is parsed (:class:`ConfigurationError` if unknown).
     """
-    if friction_kind not in FRICTION_KINDS:
-        raise ConfigurationError(
-            f"unknown friction {friction_kind!r}; expected {', '.join(FRICTION_KINDS)}"
-        )
+    friction_kind = FrictionKind.parse(friction_kind)
     config = config or FilterConfig()
     rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
@@ -138,7 +138,7 @@ def identify_model(
     offsets_nm = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
     details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
     friction: FrictionModel = stage_one
-    if friction_kind == "wn":
+    if friction_kind is FrictionKind.WN:
         from teleop_force.identification.wavelet_training import train_wavelet_network
 
         if not isinstance(stage_one, CoupledCoulombViscous):

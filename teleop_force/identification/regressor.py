@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
-from teleop_force.errors import ModelError, ModelFileError
+from teleop_force.errors import ModelError
 from teleop_force.robots.description import LINK_PARAMETER_NAMES, RobotDescription
 
 _DIRECTIONAL_STEP = 1e-5
@@ -195,31 +195,10 @@ class BaseParameters:
         ``independent`` and ``dependent`` (each once), and ``dependency`` finite numbers of
         shape ``(len(independent), len(dependent))``.
         """
-        from teleop_force.friction.base import file_floats, file_indices
+        from teleop_force.identification.model_file_schema import BaseParametersEntry
+        from teleop_force.schema import read_entry
 
-        if not isinstance(data, dict):
-            raise ModelFileError(f"expected an object, got {type(data).__name__}")
-        for key in ("full_names", "independent", "dependent", "dependency"):
-            if key not in data:
-                raise ModelFileError("missing", column=key)
-        names = data["full_names"]
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise ModelFileError("expected a list of names", column="full_names")
-        independent = file_indices(data["independent"], "independent", len(names))
-        dependent = file_indices(data["dependent"], "dependent", len(names))
-        dependency = file_floats(data["dependency"], "dependency")
-        if dependency.size == 0:
-            dependency = dependency.reshape(independent.size, dependent.size)
-        if dependency.shape != (independent.size, dependent.size):
-            raise ModelFileError(
-                f"expected {independent.size} rows of {dependent.size} numbers, "
-                f"got shape {dependency.shape}",
-                column="dependency",
-            )
-        try:
-            return cls(tuple(names), independent, dependent, dependency)
-        except ModelError as exc:
-            raise ModelFileError(str(exc), column="independent") from None
+        return read_entry(data, BaseParametersEntry).parameters()
 
 
 class RigidBodyRegressor:

@@ -13,13 +13,13 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from teleop_force.friction.adaptation import LyapunovAdapter, fit_batch
-from teleop_force.friction.blas_threads import single_threaded_blas
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageConfig, CoverageMap
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
-from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.description import RobotDescription
 
 if TYPE_CHECKING:
@@ -109,7 +109,7 @@ def train_wavelet_network(
         t_offset = 0.0
         for item, extra in zip(prepared, known, strict=True):
             s = item.signals
-            with single_threaded_blas():
+            with threadpool_limits(limits=1, user_api="blas"):
                 rigid = _times(s.y_derivative, base_values) + _times(s.y_lowpassed, base_values)
             target = (
                 s.tau_lowpassed_nm

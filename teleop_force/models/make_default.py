@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.friction.kinds import FrictionKind
 from teleop_force.identification.pipeline import identify_model
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.models import DEFAULT_MODEL_PATH
@@ -80,7 +81,7 @@ def make_default_model(config: ProtocolConfig, output: Path) -> None:
     started = time.perf_counter()
     recordings = simulate_protocol(config)
     simulated = time.perf_counter()
-    model, report = identify_model(recordings, omni_description(), config.friction)
+    model, report = identify_model(recordings, omni_description(), FrictionKind(config.friction))
     model.notes.update(
         {
             "created_by": "python -m teleop_force.models.make_default",

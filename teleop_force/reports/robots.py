@@ -76,6 +76,7 @@ def mtm_study(
     folder: Path, out: Path, residual: bool, log: Callable[[str], None]
 ) -> dict[str, Any]:
     """Identify on trajectory one, evaluate on trajectory two; return the figures."""
+    from teleop_force.friction.kinds import FrictionKind
     from teleop_force.identification.pipeline import (
         evaluate_model,
         evaluate_prepared,
@@ -93,12 +94,12 @@ def mtm_study(
     serial = dvrk_mtm_description(parallelogram=False)
     rows: dict[str, dict[str, Any]] = {}
     for kind, candidate, friction, offsets in (
-        ("cv", description, "cv", None),
-        ("coupled-cv", description, "coupled-cv", None),
-        ("wn", description, "wn", None),
-        (MTM_SERIAL_ROW, serial, "cv", None),
-        (MTM_MODEL_CV_ROW, description, "model-cv", None),
-        (MTM_MODEL_CV_OFFSETS_ROW, description, "model-cv", True),
+        ("cv", description, FrictionKind.CV, None),
+        ("coupled-cv", description, FrictionKind.COUPLED_CV, None),
+        ("wn", description, FrictionKind.WN, None),
+        (MTM_SERIAL_ROW, serial, FrictionKind.CV, None),
+        (MTM_MODEL_CV_ROW, description, FrictionKind.MODEL_CV, None),
+        (MTM_MODEL_CV_OFFSETS_ROW, description, FrictionKind.MODEL_CV, True),
     ):
         start = time.perf_counter()
         try:
@@ -118,14 +119,18 @@ def mtm_study(
         log(f"MTM {kind}: test {', '.join(_pct(result['relative_rms']))}")
     effects: dict[str, list[dict[str, Any]]] = {}
     if residual:
-        from teleop_force.residual.loop import ResidualOptions, trace_residual
+        from teleop_force.residual.loop import trace_residual
+        from teleop_force.residual.options import EffectPlacement, ResidualOptions
 
+        model_cv = FrictionKind.MODEL_CV
         for label, options in (
             ("wn + found effects", ResidualOptions()),
-            (MTM_MODEL_CV_EFFECTS_ROW, ResidualOptions(friction="model-cv", offsets=True)),
+            (MTM_MODEL_CV_EFFECTS_ROW, ResidualOptions(friction=model_cv, offsets=True)),
             (
                 MTM_MOTOR_EFFECTS_ROW,
-                ResidualOptions(friction="model-cv", offsets=True, effect_placement="motor"),
+                ResidualOptions(
+                    friction=model_cv, offsets=True, effect_placement=EffectPlacement.MOTOR
+                ),
             ),
         ):
             start = time.perf_counter()
@@ -141,7 +146,7 @@ def mtm_study(
     gravity = {}
     for label, vector in _AXIS_GRAVITIES.items():
         candidate = dvrk_mtm_description(vector)
-        model, report = identify_model([train.recording], candidate, "cv")
+        model, report = identify_model([train.recording], candidate, FrictionKind.CV)
         prepared, _ = prepare([test.recording], candidate, model.filter_config, model.base)
         gravity[label] = {
             "train": report.friction_relative_rms.tolist(),

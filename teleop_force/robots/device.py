@@ -39,7 +39,7 @@ def _frozen_vector(value: ArrayLike, name: str, size: int | None = None) -> np.n
 
 
 @dataclass(frozen=True)
-class JointState:
+class DeviceReading:
     """One reading of a device, in motor coordinates (CONVENTIONS.md).
 
     Attributes:
@@ -127,8 +127,8 @@ class Device(ABC):
         return self._closed
 
     @abstractmethod
-    def read(self) -> JointState:
-        """Return the latest joint state."""
+    def read(self) -> DeviceReading:
+        """Return the latest reading (angles, commanded torques, true force if sensed)."""
 
     def command_torque(self, tau_nm: ArrayLike) -> TorqueCommand:
         """Clip ``tau_nm`` (n,) to the torque limit and send it; it acts from the next tick.

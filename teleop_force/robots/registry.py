@@ -6,15 +6,14 @@ import numpy as np
 
 from teleop_force.errors import ModelError
 from teleop_force.robots.description import RobotDescription
+from teleop_force.robots.kinds import BUILTIN_ROBOTS, RobotKind
 from teleop_force.robots.omni import omni_description
-
-BUILTIN_ROBOTS = ("none", "omni", "dvrk-mtm", "teststand")
 
 
 def friction_only_description(n_joints: int) -> RobotDescription:
     """Return a robot without rigid-body terms: friction and found effects only (``none``)."""
     return RobotDescription(
-        name="none",
+        name=RobotKind.NONE.value,
         model=None,
         n_joints=n_joints,
         coupling=np.eye(n_joints),
@@ -23,26 +22,14 @@ def friction_only_description(n_joints: int) -> RobotDescription:
     )
 
 
-def resolve_robot(name: str, n_joints: int | None = None) -> RobotDescription:
+def resolve_robot(name: str | RobotKind, n_joints: int | None = None) -> RobotDescription:
     """Return the description called ``name``: a built-in robot or a ``.json``/``.toml`` file.
 
     ``none`` needs ``n_joints``; a description file's path is resolved from the current
     folder (the description then carries its absolute path as its name).
     """
-    if name == "omni":
-        return omni_description()
-    if name == "none":
-        if n_joints is None:
-            raise ModelError("robot 'none' needs the number of joints")
-        return friction_only_description(n_joints)
-    if name == "dvrk-mtm":
-        from teleop_force.robots.dvrk_mtm import dvrk_mtm_description
-
-        return dvrk_mtm_description()
-    if name == "teststand":
-        from teleop_force.robots.teststand import teststand_description
-
-        return teststand_description()
+    if name in BUILTIN_ROBOTS:
+        return _builtin_description(RobotKind(name), n_joints)
     from teleop_force.robots.file import load_robot_description, looks_like_robot_file
 
     if looks_like_robot_file(name):
@@ -51,3 +38,30 @@ def resolve_robot(name: str, n_joints: int | None = None) -> RobotDescription:
         f"unknown robot {name!r}; built-in robots: {', '.join(BUILTIN_ROBOTS)}, "
         "or a robot description file (.json or .toml)"
     )
+
+
+def _builtin_description(kind: RobotKind, n_joints: int | None) -> RobotDescription:
+    """Return the description of a built-in robot (``none`` needs ``n_joints``)."""
+    match kind:
+        case RobotKind.OMNI:
+            return omni_description()
+        case RobotKind.NONE:
+            if n_joints is None:
+                raise ModelError("robot 'none' needs the number of joints")
+            return friction_only_description(n_joints)
+        case RobotKind.DVRK_MTM:
+            from teleop_force.robots.dvrk_mtm import dvrk_mtm_description
+
+            return dvrk_mtm_description()
+        case RobotKind.TESTSTAND:
+            from teleop_force.robots.teststand import teststand_description
+
+            return teststand_description()
+
+
+__all__ = (
+    "BUILTIN_ROBOTS",
+    "RobotKind",
+    "friction_only_description",
+    "resolve_robot",
+)

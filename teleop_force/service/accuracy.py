@@ -1,7 +1,7 @@
 """Accuracy of the live force estimate against the plant's true contact force.
 
 The slave publishes its true tip force (ContactForce) with the same ``seq`` as the joint state
-of the same tick, and each ForceEstimate carries that joint state's seq as ``source_seq``:
+of the same tick, and each ForceEstimateMessage carries that joint state's seq as ``source_seq``:
 :class:`ForceAccuracy` pairs them exactly, whichever arrives first, and accumulates::
 
     contact      |F_true| > contact_threshold_n
@@ -33,7 +33,7 @@ import numpy as np
 from teleop_force.errors import ConfigurationError
 
 #: Cut-off of the estimator's filters by default
-#: (``teleop_force.identification.lowpass.DEFAULT_CUTOFF_HZ``;
+#: (``teleop_force.lowpass.DEFAULT_CUTOFF_HZ``;
 #: not imported, to keep scipy out of the supervisor's start-up).
 DEFAULT_FILTER_CUTOFF_HZ: Final = 8.0
 #: Unpaired messages kept at most (older ones are forgotten).

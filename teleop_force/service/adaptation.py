@@ -25,7 +25,7 @@ from teleop_force.errors import ConfigurationError
 from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.friction.adaptation import LyapunovAdapter
 from teleop_force.friction.wavelet_network import WaveletNetwork
-from teleop_force.identification.lowpass import LowPass
+from teleop_force.lowpass import LowPass
 
 
 def adaptation_unavailable_reason(estimator: ForceEstimator) -> str | None:

@@ -3,7 +3,7 @@
 For one device (``--device``, the slave)::
 
     subscribes  omni/<device>/measured_js     JointState: q and effort = commanded torque
-    publishes   omni/<device>/estimated_cf    ForceEstimate, one per joint state
+    publishes   omni/<device>/estimated_cf    ForceEstimateMessage, one per joint state
     queryable   omni/<device>/service/model   the model JSON (DynamicModel.to_dict());
                                               {"load": "/abs/model.json"}: run that model
     queryable   omni/<device>/service/control {"record": "start", "path": "/abs/x.mcap"},
@@ -217,7 +217,7 @@ class ForceService:
         self.on_ground_all = 0
         self.on_ground_joint = np.zeros(self.n_joints, dtype=np.int64)
         self.stream_restarts = 0
-        self.last_estimate: m.ForceEstimate | None = None
+        self.last_estimate: m.ForceEstimateMessage | None = None
         self.adaptation: OnlineAdaptation | None = None
         self.adapting = False
         self.adaptation_note = adaptation_unavailable_reason(self.estimator) or ""
@@ -402,7 +402,7 @@ class ForceService:
             if estimate is not None:
                 recorder.submit(self._estimate_key, estimate, estimate.t_ns)
 
-    def _estimate_locked(self, js: m.JointState) -> m.ForceEstimate | None:
+    def _estimate_locked(self, js: m.JointState) -> m.ForceEstimateMessage | None:
         """Estimate on one joint state and publish; return the published message."""
         started_s = time.perf_counter()
         event = self.seqs.observe(js.seq)
@@ -429,7 +429,7 @@ class ForceService:
             estimate = self.estimator.update(t_s, q, tau)
             if self.adapting and self.adaptation is not None:
                 self.adaptation.update(t_s, q, tau)
-            message = m.ForceEstimate(
+            message = m.ForceEstimateMessage(
                 self._seq,
                 time.time_ns(),
                 js.seq,

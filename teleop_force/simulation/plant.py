@@ -40,7 +40,7 @@ import pinocchio as pin
 from teleop_force.errors import ConfigurationError, DataError, ModelError
 from teleop_force.robots import omni
 from teleop_force.robots.description import Robot, RobotDescription
-from teleop_force.robots.device import Device, JointState
+from teleop_force.robots.device import Device, DeviceReading
 from teleop_force.simulation.contact import PlaneContact
 from teleop_force.simulation.effects import PlantEffect
 from teleop_force.simulation.true_friction import TrueFriction
@@ -214,10 +214,10 @@ class SimulatedOmni(Device):
         """The configured control tick [s]."""
         return self.config.control_period_s
 
-    def read(self) -> JointState:
+    def read(self) -> DeviceReading:
         """Quantized angles, last commanded torque and true tip force at the current tick."""
         self._check_open()
-        return JointState(
+        return DeviceReading(
             t_s=self._t_s,
             q_rad=self.measured_q_rad(),
             tau_nm=self._tau_commanded,

@@ -45,7 +45,8 @@ ContactForce (type 3), key ``omni/<device>/measured_cf``; size 40
 | 0      | header     | magic, version, type, seq, t_ns                          |
 | 16     | float64[3] | f_n = (f_x, f_y, f_z), tip force on the environment, base frame [N] |
 
-ForceEstimate (type 4), key ``omni/<device>/estimated_cf``; size 45 + 32 n + ceil(n/8)
+ForceEstimateMessage (type 4, MCAP schema ``teleop_force.ForceEstimate``), key
+``omni/<device>/estimated_cf``; size 45 + 32 n + ceil(n/8)
 
 | offset  | type             | field                                                   |
 |--------:|------------------|---------------------------------------------------------|
@@ -270,6 +271,7 @@ class JointState:
     """Measured joint state: angles, velocities and the commanded motor torques (``effort``)."""
 
     TYPE: ClassVar[MessageType] = MessageType.JOINT_STATE
+    SCHEMA_NAME: ClassVar[str] = "teleop_force.JointState"
     seq: int
     t_ns: int
     q_rad: tuple[float, ...]
@@ -337,7 +339,7 @@ class JointState:
     def json_schema(cls) -> dict[str, Any]:
         """JSON schema of :meth:`to_json_dict` (for Foxglove)."""
         return _object_schema(
-            "teleop_force.JointState",
+            cls.SCHEMA_NAME,
             {
                 "q_rad": _number_array("measured joint angles [rad]"),
                 "qd_rad_s": _number_array("joint velocities [rad/s]"),
@@ -351,6 +353,7 @@ class JointSetpoint:
     """Joint position setpoint (the master pose) sent to a slave."""
 
     TYPE: ClassVar[MessageType] = MessageType.JOINT_SETPOINT
+    SCHEMA_NAME: ClassVar[str] = "teleop_force.JointSetpoint"
     seq: int
     t_ns: int
     q_rad: tuple[float, ...]
@@ -398,7 +401,7 @@ class JointSetpoint:
     def json_schema(cls) -> dict[str, Any]:
         """JSON schema of :meth:`to_json_dict` (for Foxglove)."""
         return _object_schema(
-            "teleop_force.JointSetpoint",
+            cls.SCHEMA_NAME,
             {"q_rad": _number_array("joint position setpoint [rad]")},
         )
 
@@ -408,6 +411,7 @@ class ContactForce:
     """Ground-truth force of the tip on the environment, base frame (sensor or simulator)."""
 
     TYPE: ClassVar[MessageType] = MessageType.CONTACT_FORCE
+    SCHEMA_NAME: ClassVar[str] = "teleop_force.ContactForce"
     seq: int
     t_ns: int
     f_n: tuple[float, ...]
@@ -453,7 +457,7 @@ class ContactForce:
     @classmethod
     def json_schema(cls) -> dict[str, Any]:
         """JSON schema of :meth:`to_json_dict` (for Foxglove)."""
-        return _object_schema("teleop_force.ContactForce", {"f_n": _vector3_schema()})
+        return _object_schema(cls.SCHEMA_NAME, {"f_n": _vector3_schema()})
 
 
 def _vector3_schema(nullable: bool = False) -> dict[str, Any]:
@@ -467,7 +471,7 @@ def _vector3_schema(nullable: bool = False) -> dict[str, Any]:
 
 
 @dataclass(frozen=True, slots=True)
-class ForceEstimate:
+class ForceEstimateMessage:
     """Estimated contact force and the joint-space quantities it was computed from.
 
     ``f_n`` may hold NaN when no estimate exists (tip Jacobian near singular); every other
@@ -476,6 +480,8 @@ class ForceEstimate:
     """
 
     TYPE: ClassVar[MessageType] = MessageType.FORCE_ESTIMATE
+    #: Recorded name (MCAP schema), kept from before the class was renamed.
+    SCHEMA_NAME: ClassVar[str] = "teleop_force.ForceEstimate"
     seq: int
     t_ns: int
     source_seq: int
@@ -547,19 +553,19 @@ class ForceEstimate:
         """Parse a binary message; raise MessageError if it is malformed in any way."""
         buf = _buffer(data)
         _check_header(buf, cls.TYPE)
-        n = _joint_count(buf, "ForceEstimate", offset=HEADER_SIZE + 4)
+        n = _joint_count(buf, "ForceEstimateMessage", offset=HEADER_SIZE + 4)
         layout = _FORCE_ESTIMATE[n]
-        _check_size(buf, layout.size, "ForceEstimate")
+        _check_size(buf, layout.size, "ForceEstimateMessage")
         v = layout.unpack(buf)
         mask = int.from_bytes(v[-1], "little")
         if mask >> n:
-            raise MessageError(f"ForceEstimate: on_trained_ground bits set beyond joint {n}")
+            raise MessageError(f"ForceEstimateMessage: on_trained_ground bits set beyond joint {n}")
         f = v[7:10]
         if any(map(math.isinf, f)):
-            raise MessageError("ForceEstimate: infinite f_n")
+            raise MessageError("ForceEstimateMessage: infinite f_n")
         o = 10  # index of tau_ext_nm[0] in v
         if not _all_finite(v[o:-1]):
-            raise MessageError("ForceEstimate: non-finite joint-space value")
+            raise MessageError("ForceEstimateMessage: non-finite joint-space value")
         flags = tuple(bool(mask >> j & 1) for j in range(n))
         return _build(
             cls,
@@ -590,12 +596,14 @@ class ForceEstimate:
     def from_json_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of :meth:`to_json_dict`; raise MessageError."""
 
-        def build(d: Mapping[str, Any]) -> ForceEstimate:
+        def build(d: Mapping[str, Any]) -> ForceEstimateMessage:
             f = d["f_n"]
             force = tuple(math.nan if f[k] is None else f[k] for k in ("x", "y", "z"))
             flags = d["on_trained_ground"]
             if not isinstance(flags, list) or not all(isinstance(x, bool) for x in flags):
-                raise MessageError("ForceEstimate: on_trained_ground must be a list of booleans")
+                raise MessageError(
+                    "ForceEstimateMessage: on_trained_ground must be a list of booleans"
+                )
             return cls(
                 d["seq"], d["t_ns"], d["source_seq"], force, d["tau_ext_nm"], tuple(flags),
                 d["coverage_weight"], d["tau_motor_filtered_nm"], d["tau_model_filtered_nm"],
@@ -607,7 +615,7 @@ class ForceEstimate:
     def json_schema(cls) -> dict[str, Any]:
         """JSON schema of :meth:`to_json_dict` (for Foxglove)."""
         return _object_schema(
-            "teleop_force.ForceEstimate",
+            cls.SCHEMA_NAME,
             {
                 "source_seq": {
                     "type": "integer",
@@ -632,6 +640,7 @@ class Status:
     """Safety state of a device and the human-readable reason for it."""
 
     TYPE: ClassVar[MessageType] = MessageType.STATUS
+    SCHEMA_NAME: ClassVar[str] = "teleop_force.Status"
     seq: int
     t_ns: int
     state: SafetyState
@@ -705,7 +714,7 @@ class Status:
     def json_schema(cls) -> dict[str, Any]:
         """JSON schema of :meth:`to_json_dict` (for Foxglove)."""
         return _object_schema(
-            "teleop_force.Status",
+            cls.SCHEMA_NAME,
             {
                 "state": {"type": "string", "enum": [s.name.lower() for s in SafetyState]},
                 "reason": {"type": "string"},
@@ -725,7 +734,7 @@ _STATUS_FIELDS: Final = ("seq", "t_ns", "state", "reason")
 # --------------------------------------------------------------------------- dispatch
 
 #: Any wire message.
-Message = JointState | JointSetpoint | ContactForce | ForceEstimate | Status
+Message = JointState | JointSetpoint | ContactForce | ForceEstimateMessage | Status
 
 #: Message class by type byte.
 MESSAGE_CLASSES: Final[Mapping[int, type[Message]]] = MappingProxyType(
@@ -733,20 +742,20 @@ MESSAGE_CLASSES: Final[Mapping[int, type[Message]]] = MappingProxyType(
         MessageType.JOINT_STATE: JointState,
         MessageType.JOINT_SETPOINT: JointSetpoint,
         MessageType.CONTACT_FORCE: ContactForce,
-        MessageType.FORCE_ESTIMATE: ForceEstimate,
+        MessageType.FORCE_ESTIMATE: ForceEstimateMessage,
         MessageType.STATUS: Status,
     }
 )
 
 #: Message class by JSON schema name (the ``title`` of :meth:`json_schema`).
 MESSAGE_CLASSES_BY_SCHEMA: Final[Mapping[str, type[Message]]] = MappingProxyType(
-    {f"teleop_force.{c.__name__}": c for c in MESSAGE_CLASSES.values()}
+    {c.SCHEMA_NAME: c for c in MESSAGE_CLASSES.values()}
 )
 
 
 def schema_name(message_class: type[Message]) -> str:
     """Name under which ``message_class`` is recorded (MCAP schema name)."""
-    return f"teleop_force.{message_class.__name__}"
+    return message_class.SCHEMA_NAME
 
 
 def decode(data: bytes | bytearray | memoryview) -> Message:
@@ -786,7 +795,7 @@ __all__ = (
     "MESSAGE_CLASSES_BY_SCHEMA",
     "VERSION",
     "ContactForce",
-    "ForceEstimate",
+    "ForceEstimateMessage",
     "JointSetpoint",
     "JointState",
     "Message",

@@ -70,6 +70,7 @@ def quick_run() -> dict:
     return json.loads(lines[0])
 
 
+@pytest.mark.zenoh  # the replay figures run a service on a loopback Zenoh session
 def test_quick_bench_prints_the_figures(quick_run: dict) -> None:
     result = quick_run
     assert result["quick"] is True

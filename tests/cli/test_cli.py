@@ -112,14 +112,32 @@ def test_console_script_reports_without_traceback(tmp_path: Path) -> None:
 
 
 def test_residual_choices_are_the_libraries_own() -> None:
-    """The parser lists the choices as literals (it must not import the residual loop to
-    start); they must be the library's."""
+    """The parser lists the residual choices from the library's enums, and each is accepted."""
     from teleop_force.cli.main import build_parser
-    from teleop_force.residual.loop import EFFECT_PLACEMENTS, RESIDUAL_FRICTION_KINDS
+    from teleop_force.friction.kinds import FrictionKind
+    from teleop_force.residual.options import EffectPlacement, ResidualOptions
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.choices and "residual" in a.choices)
     residual = sub.choices["residual"]
     choices = {a.dest: tuple(a.choices) for a in residual._actions if a.choices}
-    assert choices["effect_placement"] == EFFECT_PLACEMENTS
-    assert set(choices["friction"]) == set(RESIDUAL_FRICTION_KINDS) - {"wn"}
+    assert choices["effect_placement"] == ("auto", "motor", "model", "either")
+    assert choices["friction"] == ("cv", "coupled-cv", "model-cv")  # the contract's flags
+    for placement in choices["effect_placement"]:
+        assert ResidualOptions(effect_placement=placement).effect_placement is EffectPlacement(
+            placement
+        )
+    for kind in choices["friction"]:
+        assert ResidualOptions(friction=kind).friction is FrictionKind(kind)
+
+
+def test_building_the_parser_does_not_import_the_residual_loop() -> None:
+    """The choices come from the light options module, not the loop (NumPy/SciPy fits)."""
+    code = (
+        "import sys; from teleop_force.cli.main import build_parser; build_parser();"
+        " print(sorted(m for m in sys.modules if m.startswith('teleop_force.residual')))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "['teleop_force.residual', 'teleop_force.residual.options']"

@@ -7,14 +7,8 @@ import pytest
 
 from teleop_force.errors import ModelError
 from teleop_force.estimation.estimator import ForceEstimator
-from teleop_force.estimation.kernels import (
-    CoverageLookup,
-    compile_linear_map,
-    effect_kernel,
-    linear_friction_kernel,
-)
+from teleop_force.estimation.kernels import ModelTerms, linear_map_into
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
-from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import BasisSpec, FoundEffect
@@ -131,58 +125,51 @@ def test_force_equals_least_squares_of_the_robot() -> None:
     np.testing.assert_allclose(estimator._rigid.jacobian([0.2, 0.5, 0.4]), jac, atol=1e-14)
 
 
-def test_coverage_lookup_equals_coverage_map() -> None:
-    inputs = ((0,), (1, 2), (0, 1, 2))
-    lo = ((-2.0,), (-2.0, -1.5), (-1.0, -1.0, -1.0))
-    hi = ((2.0,), (2.0, 1.5), (1.0, 1.0, 1.0))
-    cov = CoverageMap(inputs, lo, hi)
+def test_model_terms_follow_new_coverage_counts() -> None:
+    net = _network()
+    terms = ModelTerms(_model(net))
     rng = np.random.default_rng(1)
-    cov.add(rng.normal(0.0, 0.7, size=(50_000, 3)))
-    lookup = CoverageLookup(cov)
-    points = rng.uniform(-2.6, 2.6, size=(3000, 3))
-    points[:10] = [[-2.0, -2.0, -1.5]] * 10  # grid corners
-    expected = cov.trust(points)
-    got = np.array([lookup.trust(p.tolist()) for p in points])
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
-    for j in range(3):
-        density = cov.density(points, j)
-        got_density = [lookup.density(p.tolist(), j) for p in points]
-        np.testing.assert_allclose(got_density, density, atol=1e-9)
-    cov.add(rng.normal(0.5, 0.1, size=(5000, 3)))  # the lookup follows new counts
-    np.testing.assert_allclose(
-        [lookup.trust(p.tolist()) for p in points[:200]], cov.trust(points[:200]), atol=1e-12
-    )
+    points = rng.uniform(-2.6, 2.6, size=(300, 3))
+    points[:10] = [[-2.0, -2.0, -1.5]] * 10  # outside the grids
+    zero = [0.0, 0.0, 0.0]
+    got = np.array([terms(0.0, zero, p.tolist(), zero)[1] for p in points])
+    np.testing.assert_allclose(got, net.coverage.trust(points), rtol=0, atol=1e-12)
+    assert 0.0 < got.mean() < 1.0
+    net.coverage.add(rng.normal(0.5, 0.1, size=(5000, 3)))  # the terms follow new counts
+    again = np.array([terms(0.0, zero, p.tolist(), zero)[1] for p in points])
+    np.testing.assert_allclose(again, net.coverage.trust(points), atol=1e-12)
+    assert np.abs(again - got).max() > 0.1
 
 
-def test_linear_friction_kernels_equal_torque() -> None:
+@pytest.mark.parametrize("friction", ["cv", "coupled-cv"])
+def test_model_terms_equal_friction_offsets_and_effects(friction) -> None:
     description = omni_description()
     rng = np.random.default_rng(2)
-    qd = rng.normal(0.0, 1.0, size=(200, 3))
+    model_friction = {
+        "cv": CoulombViscous(3, rng.normal(size=6)),
+        "coupled-cv": CoupledCoulombViscous(3, description.friction_inputs, rng.normal(size=10)),
+    }[friction]
+    model = dataclasses.replace(_model(model_friction, EFFECT_SPECS), offsets_nm=rng.normal(size=3))
+    terms = ModelTerms(model)
+    t = np.sort(rng.uniform(0.0, 5.0, 200))
+    q, qd, load = (rng.normal(0.0, 1.0, size=(200, 3)) for _ in range(3))
     qd[:5, 1] = qd[:5, 2]  # zero relative velocity
     qd[5:10, 0] = 0.0
-    for model in (
-        CoulombViscous(3, rng.normal(size=6)),
-        CoupledCoulombViscous(3, description.friction_inputs, rng.normal(size=10)),
-    ):
-        kernel = linear_friction_kernel(model)
-        assert kernel is not None
-        np.testing.assert_allclose([kernel(v.tolist()) for v in qd], model.torque(qd), atol=1e-15)
-    assert linear_friction_kernel(_network()) is None
+    expected = model.friction_torque(qd) + model.offsets_nm + model.effects_torque(t, q, qd, load)
+    got = [terms(t[k] - t[0], q[k].tolist(), qd[k].tolist(), load[k].tolist())[0]
+           for k in range(200)]  # fmt: skip
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    model_friction.parameters[:] = rng.normal(size=model_friction.parameters.size)  # followed
+    got = terms(0.0, q[0].tolist(), qd[0].tolist(), load[0].tolist())[0]
+    np.testing.assert_allclose(got, model.friction_torque(qd[:1])[0] + model.offsets_nm
+                               + model.effects_torque(t[:1], q[:1], qd[:1], load[:1])[0],
+                               atol=1e-12)  # fmt: skip
 
 
-@pytest.mark.parametrize(("spec", "coefficients"), EFFECT_SPECS)
-def test_effect_kernels_equal_found_effects(spec, coefficients) -> None:
-    effect = FoundEffect(spec, np.asarray(coefficients, dtype=float))
-    joint, kernel = effect_kernel(effect, 3)
-    rng = np.random.default_rng(4)
-    t = np.sort(rng.uniform(0.0, 5.0, 100))
-    q, qd, tau = (rng.normal(0.0, 1.0, size=(100, 3)) for _ in range(3))
-    qd[:3] = 0.0
-    expected = effect.torque(t, q, qd, tau)[:, joint]
-    got = [kernel(t[k] - t[0], q[k].tolist(), qd[k].tolist(), tau[k].tolist()) for k in range(100)]
-    np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-16)
-    assert effect_kernel(object(), 3) is None
-    assert effect_kernel(FoundEffect(BasisSpec(0, "q7", "linear"), np.ones(1)), 3) is None
+def test_model_terms_refuse_an_effect_outside_the_joints() -> None:
+    model = _model(CoulombViscous(3), [(BasisSpec(0, "q7", "linear"), [1.0])])
+    with pytest.raises(ModelError):
+        ModelTerms(model)
 
 
 def test_torque_one_equals_torque_and_follows_changes() -> None:
@@ -211,13 +198,12 @@ def test_network_without_fallback_raises_on_update(with_coverage) -> None:
         estimator.update(0.0, np.zeros(3), np.zeros(3))
 
 
-def test_compile_linear_map() -> None:
+def test_linear_map_into() -> None:
     matrix = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.5], [0.0, 0.0, 0.0]])
-    f = compile_linear_map(matrix)
-    x = [0.3, -1.2, 2.5]
-    np.testing.assert_array_equal(f(x), matrix @ np.array(x))
-    with pytest.raises(ValueError):
-        compile_linear_map(np.array([np.nan]))
+    x = np.array([0.3, -1.2, 2.5])
+    out = np.full(3, np.nan)
+    linear_map_into(matrix, x, out)
+    np.testing.assert_array_equal(out, matrix @ x)
 
 
 def test_estimator_matches_robot_terms() -> None:

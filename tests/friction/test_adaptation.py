@@ -1,18 +1,21 @@
 import math
+import threading
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.friction import adaptation
 from teleop_force.friction.adaptation import (
     LyapunovAdapter,
     filtered_basis_normal_equations,
     fit_batch,
 )
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
-from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.lowpass import lowpass_batch
 
 FS_HZ = 1000.0
 
@@ -200,6 +203,32 @@ def test_batch_fit_recovers_known_network():
     assert np.all(result.relative_rms < 1e-6)
     assert net.fallback is not None
     assert net.coverage.total_samples(0) == np.count_nonzero(np.abs(qd[:, 0]) < 1.5)
+
+
+def _blas_threads() -> list[int]:
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_batch_fit_runs_blas_on_one_thread_and_restores_the_count(monkeypatch):
+    """The groups' threads see one BLAS thread (OpenBLAS busy-waits); the count comes back."""
+    seen: list[tuple[str, list[int]]] = []
+    original = adaptation.filtered_basis_normal_equations
+
+    def recording(*args, **kwargs):
+        seen.append((threading.current_thread().name, _blas_threads()))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(adaptation, "filtered_basis_normal_equations", recording)
+    truth = fixed_network(seed=4, per_joint=8)
+    t, qd = exciting_velocities(5.0, seed=4)
+    target_l = lowpass_batch(truth.torque(qd), t, 8.0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_threads()
+        assert before and all(count == 2 for count in before), "NumPy's BLAS should be seen"
+        fit_batch(fixed_network(seed=11, per_joint=8), t, qd, target_l, wavelets="active")
+        assert _blas_threads() == before
+    assert len(seen) == 2  # the two pool geometries, each in its own worker thread
+    assert all(name.startswith("fit_batch") and counts == [1] * len(before) for name, counts in seen)
 
 
 def test_batch_fit_over_visited_pool_explains_the_target():

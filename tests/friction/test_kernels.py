@@ -2,7 +2,6 @@
 straightforward NumPy reference computed on the same small problems."""
 
 import math
-import threading
 
 import numba
 import numpy as np
@@ -17,10 +16,9 @@ from teleop_force.friction.adaptation import (
     wavelet_scores,
     wavelet_scores_of_targets,
 )
-from teleop_force.friction.blas_threads import blas_thread_counts, single_threaded_blas
 from teleop_force.friction.kernels import FilteredWavelets
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
-from teleop_force.identification.lowpass import lowpass_batch
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.wavelet_training import batch_row_stride
 
 CUTOFF_HZ = 8.0
@@ -162,34 +160,6 @@ def test_kernel_compiles_without_a_writable_cache(monkeypatch):
     compiled = kernels._jit()(twice)
     assert compiled(2.0) == 4.0
     assert kernels.warm_up() >= 0.0
-
-
-def test_single_threaded_blas_is_restored_and_changes_nothing():
-    rng = np.random.default_rng(0)
-    y = rng.normal(size=(2000, 200))
-    before = blas_thread_counts()
-    assert before, "NumPy's OpenBLAS should be found"
-    barrier = threading.Barrier(3)
-    seen = []
-
-    def work() -> None:
-        with single_threaded_blas():
-            barrier.wait()  # all three blocks open at once
-            seen.append(blas_thread_counts())
-            barrier.wait()
-
-    workers = [threading.Thread(target=work) for _ in range(2)]
-    for worker in workers:
-        worker.start()
-    with single_threaded_blas():
-        barrier.wait()
-        inside = y.T @ y
-        barrier.wait()
-    for worker in workers:
-        worker.join()
-    assert all(all(count == 1 for count in counts) for counts in seen)
-    assert blas_thread_counts() == before
-    np.testing.assert_allclose(inside, y.T @ y, rtol=1e-12)
 
 
 @pytest.mark.parametrize(

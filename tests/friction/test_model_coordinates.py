@@ -166,14 +166,14 @@ def test_bad_friction_entries_are_refused_naming_the_field(tmp_path: Path, chang
     change(data)
     with pytest.raises(ModelFileError) as info:
         ModelCoordinateFriction.from_dict(data)
-    assert info.value.column == field, str(info.value)
+    assert info.value.column.split("[")[0] == field, str(info.value)  # or an element of it
     seed = copy.deepcopy(model_seed_dicts()[2])
     seed["friction"] = data
     path = tmp_path / "model.json"
     path.write_text(json.dumps(seed))
     with pytest.raises(ModelFileError) as info:
         DynamicModel.load(path)
-    assert str(path) in str(info.value) and f"column 'friction.{field}'" in str(info.value)
+    assert str(path) in str(info.value) and f"column 'friction.{field}" in str(info.value)
 
 
 def test_a_model_file_entry_that_is_not_an_object_is_refused():
@@ -195,8 +195,8 @@ def test_every_bad_number_is_refused_or_gives_a_working_estimator(tmp_path: Path
                     model = DynamicModel.load(path)
                 except ModelFileError as exc:
                     # parallel rows after the change: fewer laws than parameters
-                    assert "column 'friction.coupling'" in str(exc) or (
-                        "column 'friction.parameters'" in str(exc)
+                    assert "column 'friction.coupling" in str(exc) or (
+                        "column 'friction.parameters" in str(exc)
                     ), str(exc)
                     continue
                 assert math.isfinite(bad)

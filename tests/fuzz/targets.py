@@ -108,7 +108,7 @@ def message_examples() -> list[m.Message]:
         m.JointState(3, t, tuple(np.linspace(-1, 1, 9)), (0.0,) * 9, (1e-300,) * 9),
         m.JointSetpoint(4, t, (0.1, 0.8, 0.3)),
         m.ContactForce(5, t, (0.0, -1.5, 0.25)),
-        m.ForceEstimate(
+        m.ForceEstimateMessage(
             6,
             t,
             5,
@@ -119,7 +119,7 @@ def message_examples() -> list[m.Message]:
             (0.1, 0.2, 0.3),
             (0.0, 0.1, 0.2),
         ),
-        m.ForceEstimate(
+        m.ForceEstimateMessage(
             7, t, 6, (1.0, 2.0, 3.0), (0.1,) * 9, (True,) * 9, (1.0,) * 9, (0.0,) * 9, (0.0,) * 9
         ),
         m.Status(8, t, m.SafetyState.HOLDING, "master setpoint stale: 51.0 ms > 50 ms"),

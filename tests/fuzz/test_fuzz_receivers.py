@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -26,12 +27,6 @@ from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import declare_data_publisher, query_json
-from teleop_force.transport.session import (
-    ZenohOptions,
-    free_tcp_port,
-    listen_endpoint,
-    open_session,
-)
 
 from .strategies import mutate_bytes
 from .targets import count, fuzzed_payloads, message_examples
@@ -75,7 +70,8 @@ def wait_until(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.02)
 
 
-def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating():
+@pytest.mark.zenoh
+def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pair):
     own = keys.measured_js(DEVICE)
     others = [
         keys.setpoint_js("fuzz-master"),
@@ -86,24 +82,18 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating():
     payloads = {key: fuzzed_payloads(N_PAYLOADS, seed=i) for i, key in enumerate([own, *others])}
     expected_valid = sum(map(own_joint_state_is_valid, payloads[own]))
     expected_recorded = {key: recorded_outcomes(payloads[key]) for key in others}
-    endpoint = listen_endpoint(free_tcp_port())
     folder = Path(tempfile.mkdtemp(prefix="fuzz-service-"))
     record = folder / "fuzz.mcap"
-    service_session = open_session(
-        ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False)
-    )
-    session = open_session(
-        ZenohOptions(mode="peer", connect=(endpoint,), listen=(), multicast_scouting=False)
-    )
+    service_session, session = zenoh_pair.listener, zenoh_pair.connector
     model = DynamicModel.load(DEFAULT_MODEL_PATH)
     service = ForceService(
         service_session, model, ServiceConfig(device=DEVICE, record_path=record)
     ).start()
     publishers = {key: declare_data_publisher(session, key) for key in payloads}
-    got: list[m.ForceEstimate] = []
+    got: list[m.ForceEstimateMessage] = []
     sub = session.declare_subscriber(
         keys.estimated_cf(DEVICE),
-        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
+        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
     )
     try:
         for pub in publishers.values():
@@ -137,8 +127,6 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating():
         for pub in publishers.values():
             pub.undeclare()
         service.close()
-        session.close()
-        service_session.close()
     malformed = after_fuzz["malformed"]["by_key"]
     assert malformed.get(own, 0) == N_PAYLOADS - expected_valid
     assert after_fuzz["joint_states"]["received"] == expected_valid

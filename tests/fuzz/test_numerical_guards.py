@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -35,7 +36,6 @@ from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import declare_data_publisher
-from teleop_force.transport.session import ZenohOptions, open_session
 
 INPUTS = ((0,), (1, 2), (1, 2))
 
@@ -135,17 +135,14 @@ def test_estimator_raises_data_error_on_non_finite_input_and_is_unharmed(model, 
 
 @contextlib.contextmanager
 def _live_service(
-    model: DynamicModel, device: str
-) -> Iterator[tuple[ForceService, list[m.ForceEstimate], Any]]:
+    session: zenoh.Session, model: DynamicModel, device: str
+) -> Iterator[tuple[ForceService, list[m.ForceEstimateMessage], Any]]:
     """A service on a loopback peer session, the estimates it publishes, a joint-state publisher."""
-    session = open_session(
-        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
-    )
     service = ForceService(session, model, ServiceConfig(device=device)).start()
-    got: list[m.ForceEstimate] = []
+    got: list[m.ForceEstimateMessage] = []
     sub = session.declare_subscriber(
         keys.estimated_cf(device),
-        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
+        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
     )
     pub = declare_data_publisher(session, keys.measured_js(device))
     try:
@@ -154,7 +151,6 @@ def _live_service(
         sub.undeclare()
         pub.undeclare()
         service.close()
-        session.close()
 
 
 def non_finite_joint_state(seq: int, t_ns: int, value: float) -> bytes:
@@ -164,11 +160,14 @@ def non_finite_joint_state(seq: int, t_ns: int, value: float) -> bytes:
     return bytes(raw)
 
 
-def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running(model):
+@pytest.mark.zenoh
+def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running(
+    zenoh_session, model
+):
     device = "guard-test"
     t0 = 1_700_000_000_000_000_000
     sent_bad = 0
-    with _live_service(model, device) as (service, got, pub):
+    with _live_service(zenoh_session, model, device) as (service, got, pub):
         for k in range(300):
             t_ns = t0 + k * 1_000_000
             if k % 50 == 25:
@@ -203,7 +202,8 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
     assert len(got) == 399 and all(np.all(np.isfinite(e.tau_ext_nm)) for e in got)
 
 
-def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(model):
+@pytest.mark.zenoh
+def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(zenoh_session, model):
     """1e6 (the bound) in one angle: estimated, and every later estimate is finite.
 
     Beyond the bound (1e300 overflows the filter states for good, found while fuzzing) the
@@ -211,7 +211,7 @@ def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(model):
     """
     device = "spike-test"
     t0 = 1_700_000_000_000_000_000
-    with _live_service(model, device) as (service, got, pub):
+    with _live_service(zenoh_session, model, device) as (service, got, pub):
         for k in range(300):
             q = (0.1, MAX_ABS_JOINT_VALUE if k == 100 else 0.7, 0.3)
             pub.put(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())

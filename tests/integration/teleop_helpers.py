@@ -1,10 +1,14 @@
-"""Helpers of the teleoperation integration tests: real processes on 127.0.0.1."""
+"""Helpers of the integration tests: real processes on 127.0.0.1, started and stopped.
+
+The Zenoh sessions of the tests themselves are fixtures of tests/conftest.py.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -43,6 +47,15 @@ def alive(pid: int) -> bool:
     try:  # a zombie is not alive
         with open(f"/proc/{pid}/stat") as f:
             return f.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def tcp_port_open(port: int, host: str = "127.0.0.1") -> bool:
+    """Whether something accepts TCP connections on ``host:port`` (e.g. the dashboard)."""
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
     except OSError:
         return False
 

@@ -1,7 +1,7 @@
 """The dashboard in a real headless Chromium, fed by real Zenoh traffic from this test.
 
 The test process plays the teleop system: it listens on a loopback endpoint (peer mode,
-multicast scouting off), publishes synthetic JointState / ForceEstimate / ContactForce at
+multicast scouting off), publishes synthetic JointState / ForceEstimateMessage / ContactForce at
 ~1 kHz plus setpoints and a status, and answers the service's model / stats / control
 queries. The dashboard runs as ``python -m web`` would (runpy, after setting a parent-death
 signal) in a subprocess connected to that endpoint; playwright drives Debian's Chromium (never
@@ -38,18 +38,8 @@ import zenoh
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import declare_data_publisher
-from teleop_force.transport.session import (
-    ZenohOptions,
-    free_tcp_port,
-    listen_endpoint,
-    open_session,
-)
+from teleop_force.transport.session import free_tcp_port
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-]  # fmt: skip
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "test-output"
 DEVICE, MASTER = "slave", "master"
@@ -65,10 +55,7 @@ STARTUP_S = 60.0
 WAIT_S = 45.0
 WAIT_MS = int(WAIT_S * 1000)
 
-pytestmark = pytest.mark.skipif(
-    not CHROMIUM.exists(),
-    reason="Debian's chromium is not installed at /usr/bin/chromium (apt-get install chromium)",
-)
+pytestmark = [pytest.mark.browser, pytest.mark.zenoh]  # skipped without Chromium (conftest)
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (python) not installed")
 
 
@@ -281,7 +268,7 @@ class FakeSystem:
         f_est = tuple(x + 0.05 * math.sin(7 * t + i) for i, x in enumerate(f_est))
         self._pubs["js"].put(m.JointState(k % 2**32, t_ns, q, qd, tau).encode())
         self._pubs["fe"].put(
-            m.ForceEstimate(
+            m.ForceEstimateMessage(
                 k % 2**32, t_ns, k % 2**32, f_est,
                 tuple(x * 0.1 for x in f_true), trained, tuple(1.0 if f else 0.0 for f in trained),
                 tau, tuple(x - 0.004 for x in tau),
@@ -391,24 +378,14 @@ def stop_process_group(proc: subprocess.Popen, grace_s: float = 10.0) -> None:
 
 
 @pytest.fixture(scope="module")
-def system(tmp_path_factory):
+def system(tmp_path_factory, zenoh_rendezvous):
     # Every resource is released by the ExitStack, last in first out, each step run even if
     # another fails: the dashboard's process group first (no query in flight any more), then
-    # the publisher thread and the declarations, then the sessions.
+    # the publisher thread and the declarations, then the observer's session; the listening
+    # session last, with its fixture (zenoh_rendezvous, tests/conftest.py).
     with contextlib.ExitStack() as stack:
-        endpoint = listen_endpoint(free_tcp_port())
-        session = open_session(
-            ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False)
-        )
-        stack.callback(session.close)
-        observer = open_session(
-            ZenohOptions(
-                mode="peer",
-                connect=(endpoint,),
-                listen=("tcp/127.0.0.1:0",),
-                multicast_scouting=False,
-            )
-        )
+        session, endpoint = zenoh_rendezvous.session, zenoh_rendezvous.endpoint
+        observer = zenoh_rendezvous.connect_peer()
         stack.callback(observer.close)
         models = tmp_path_factory.mktemp("models")
         (models / "trained_disc.json").write_text(json.dumps(model_json()))
@@ -442,11 +419,11 @@ def system(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def page(system):
+def page(system, chromium):
     with sync_api.sync_playwright() as pw:
         browser = pw.chromium.launch(
-            executable_path=str(CHROMIUM),
-            args=CHROMIUM_ARGS,
+            executable_path=chromium.executable_path,
+            args=list(chromium.args),
             headless=True,
             timeout=STARTUP_S * 1000,
         )

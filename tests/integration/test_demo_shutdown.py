@@ -11,6 +11,8 @@ import time
 import pytest
 from teleop_helpers import STARTUP_TIMEOUT_S, alive, python_module, wait_for
 
+pytestmark = pytest.mark.zenoh  # the demo's processes talk over Zenoh on loopback
+
 
 def run_demo(tmp_path, *extra: str) -> subprocess.Popen:
     command = python_module(

@@ -43,7 +43,7 @@ from teleop_force.transport.session import (
     open_session,
 )
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
 MASTER, SLAVE = "ft-master", "ft-slave"
 ROOT = Path(__file__).resolve().parents[2]
@@ -65,7 +65,7 @@ class Observer:
         self.lock = threading.Lock()
         self.states: list[tuple[float, m.Status]] = []
         self.joint_states: list[tuple[float, m.JointState]] = []
-        self.estimates: list[tuple[float, m.ForceEstimate]] = []
+        self.estimates: list[tuple[float, m.ForceEstimateMessage]] = []
         self.counts: Counter[str] = Counter()
         self.tokens: set[str] = set()
         self.subs = [
@@ -97,7 +97,7 @@ class Observer:
                 self.joint_states.append((time.perf_counter(), js))
 
     def on_estimate(self, sample):
-        estimate = self._decode(sample, m.ForceEstimate)
+        estimate = self._decode(sample, m.ForceEstimateMessage)
         if estimate is not None:
             with self.lock:
                 self.estimates.append((time.perf_counter(), estimate))
@@ -229,12 +229,9 @@ class System:
 
 
 @pytest.fixture(scope="module")
-def system(tmp_path_factory):
+def system(tmp_path_factory, zenoh_rendezvous):
     tmp = tmp_path_factory.mktemp("faults")
-    endpoint = listen_endpoint(free_tcp_port())
-    session = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
-    args = ["--connect", endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
-    system = System(tmp, args, session)
+    system = System(tmp, zenoh_rendezvous.process_args, zenoh_rendezvous.session)
     try:
         system.start("service")
         system.start("slave")
@@ -247,7 +244,6 @@ def system(tmp_path_factory):
                 os.killpg(p.pid, signal.SIGCONT)
         RESULTS["peer_system_final"] = system.final_stats()
         RESULTS["exit_codes"] = system.close()
-        session.close()
         OUT.parent.mkdir(exist_ok=True)
         OUT.write_text(json.dumps(RESULTS, indent=1, default=str) + "\n")
         print(f"\nfault figures: {json.dumps(RESULTS, indent=1, default=str)}")

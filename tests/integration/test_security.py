@@ -21,7 +21,14 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
+from teleop_helpers import (
+    STARTUP_TIMEOUT_S,
+    python_module,
+    spawn,
+    stop,
+    tcp_port_open,
+    wait_for,
+)
 
 from teleop_force.errors import TransportError
 from teleop_force.identification.dynamic_model import DynamicModel
@@ -37,6 +44,7 @@ from teleop_force.transport.session import (
     open_session,
 )
 
+pytestmark = pytest.mark.zenoh
 ROOT = Path(__file__).resolve().parents[2]
 OPENSSL = shutil.which("openssl")
 needs_openssl = pytest.mark.skipif(
@@ -157,7 +165,7 @@ def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
     ]
     try:
         wait_for(lambda: keys.alive("sec", "service") in tokens, STARTUP_TIMEOUT_S, "service")
-        wait_for(lambda: _http_up(port), STARTUP_TIMEOUT_S, f"dashboard\n{_tail(log)}", 0.2)
+        wait_for(lambda: tcp_port_open(port), STARTUP_TIMEOUT_S, f"dashboard\n{_tail(log)}", 0.2)
         time.sleep(0.5)
         pids = [pid for p in processes for pid in descendants(p.pid)]
         found = listening_sockets(pids)
@@ -189,7 +197,7 @@ def test_demo_listens_on_loopback_only(tmp_path):
             if "all processes up" in line or not line:
                 break
         assert any("all processes up" in x for x in lines), "".join(lines)
-        wait_for(lambda: _http_up(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
+        wait_for(lambda: tcp_port_open(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
         time.sleep(1.0)
         pids = descendants(demo.pid)
         found = listening_sockets(pids)
@@ -212,14 +220,6 @@ def test_a_config_file_without_listen_endpoints_still_listens_on_loopback_only(t
         session.close()
     exposed = [s for s in found if not is_loopback(s[2])]
     assert not exposed, f"listening beyond loopback: {exposed}"
-
-
-def _http_up(port: int) -> bool:
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
-            return True
-    except OSError:
-        return False
 
 
 def _tail(path: Path) -> str:
@@ -302,7 +302,7 @@ def test_service_over_tls_and_plain_or_untrusted_clients_are_refused(tmp_path, c
     try:
         # With mTLS both sides set enable_mtls (the client then presents its certificate).
         client = _client(endpoint, tls_config(tmp_path / "client.json5", certificates, mtls=mtls))
-        got: list[m.ForceEstimate] = []
+        got: list[m.ForceEstimateMessage] = []
         sub = client.declare_subscriber(
             keys.estimated_cf(device), lambda s: got.append(m.decode(s.payload.to_bytes()))
         )

@@ -29,7 +29,6 @@ import math
 import os
 import re
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -40,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, wait_for
+from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, tcp_port_open, wait_for
 
 from teleop_force.process.memory import resident_memory_mb
 from teleop_force.service.accuracy import FOLD_KEEP, AccuracyConfig, ForceAccuracy
@@ -50,11 +49,6 @@ from teleop_force.transport.session import ZenohOptions, free_tcp_port, open_ses
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "test-output" / "soak.json"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-]  # fmt: skip
 SOAK_S = float(os.environ.get("TELEOP_SOAK_S", "600"))
 SAMPLE_PERIOD_S = float(os.environ.get("TELEOP_SOAK_SAMPLE_S", "1"))
 RING = 1 << 16
@@ -154,8 +148,9 @@ def read_lines(path: Path) -> str:
 
 @pytest.mark.slow
 @pytest.mark.timeout(SOAK_S + 900)  # overrides the suite's 600 s per test (pyproject.toml)
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not at /usr/bin/chromium")
-def test_soak_ten_minutes_with_the_dashboard(tmp_path):
+@pytest.mark.browser  # skipped without Chromium (tests/conftest.py)
+@pytest.mark.zenoh
+def test_soak_ten_minutes_with_the_dashboard(tmp_path, chromium):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
     port = free_tcp_port()
     out_path = tmp_path / "demo.out"
@@ -189,13 +184,13 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
         pids["supervisor"] = demo.pid
         with sync_api.sync_playwright() as pw:
             browser = pw.chromium.launch(
-                executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True,
+                executable_path=chromium.executable_path, args=list(chromium.args), headless=True,
                 timeout=STARTUP_TIMEOUT_S * 1000,
             )  # fmt: skip
             try:
                 page = browser.new_page(viewport={"width": 1400, "height": 1000})
                 url = f"http://127.0.0.1:{port}/"
-                wait_for(lambda: _http_up(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
+                wait_for(lambda: tcp_port_open(port), STARTUP_TIMEOUT_S, "the dashboard", 0.2)
                 page.goto(url, wait_until="domcontentloaded", timeout=STARTUP_TIMEOUT_S * 1000)
                 page.wait_for_selector(
                     "#tf-trust", timeout=STARTUP_TIMEOUT_S * 3000
@@ -276,14 +271,6 @@ def test_soak_ten_minutes_with_the_dashboard(tmp_path):
     assert lat["slave_to_estimate_last_minute"] <= max(2.0 * first_p99, first_p99 + 5.0)
 
 
-def _http_up(port: int) -> bool:
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
-            return True
-    except OSError:
-        return False
-
-
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 3)
 
@@ -310,18 +297,15 @@ def test_the_supervisors_accuracy_accumulator_stays_bounded():
     assert summary["relative_rms_error"] == pytest.approx(rms_error / rms_true, abs=1e-6)
 
 
-def test_the_services_malformed_table_stays_bounded():
+@pytest.mark.zenoh
+def test_the_services_malformed_table_stays_bounded(zenoh_session):
     from teleop_force.identification.dynamic_model import DynamicModel
     from teleop_force.models import DEFAULT_MODEL_PATH
     from teleop_force.service.force_service import MAX_COUNTED_KEYS, OTHER_KEYS, ForceService
 
-    session = open_session(ZenohOptions(mode="peer", listen=(), multicast_scouting=False))
-    try:
-        service = ForceService(session, DynamicModel.load(DEFAULT_MODEL_PATH))
-        for k in range(10 * MAX_COUNTED_KEYS):
-            service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
-    finally:
-        session.close()
+    service = ForceService(zenoh_session, DynamicModel.load(DEFAULT_MODEL_PATH))
+    for k in range(10 * MAX_COUNTED_KEYS):
+        service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
     table = service.stats()["malformed"]["by_key"]
     assert len(table) == MAX_COUNTED_KEYS + 1
     assert table[OTHER_KEYS] == 9 * MAX_COUNTED_KEYS

@@ -26,13 +26,8 @@ from teleop_force.io.mcap_session import SessionReader
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import query_json
-from teleop_force.transport.session import (
-    ZenohOptions,
-    free_tcp_port,
-    listen_endpoint,
-    open_session,
-)
 
+pytestmark = pytest.mark.zenoh
 MASTER, SLAVE = "it-master", "it-slave"
 RUN_S = 1.5
 
@@ -75,12 +70,11 @@ class Observer:
 
 
 @pytest.fixture(scope="module")
-def live(tmp_path_factory):
+def live(tmp_path_factory, zenoh_rendezvous):
     tmp = tmp_path_factory.mktemp("live")
-    endpoint = listen_endpoint(free_tcp_port())
-    session = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
+    session = zenoh_rendezvous.session
     observer = Observer(session)
-    connect = ["--connect", endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
+    connect = zenoh_rendezvous.process_args
     log = tmp / "processes.log"
     record = tmp / "live.mcap"
     processes: dict[str, subprocess.Popen] = {}
@@ -150,7 +144,6 @@ def live(tmp_path_factory):
         for p in processes.values():
             stop(p, signal.SIGKILL)
         observer.close()
-        session.close()
 
 
 def test_processes_exchange_over_zenoh_without_loss(live):
@@ -229,7 +222,7 @@ def test_replay_reproduces_the_live_estimates_exactly(live):
             assert all(same), (seq, name, x, y)
 
 
-def estimates(path) -> dict[int, m.ForceEstimate]:
+def estimates(path) -> dict[int, m.ForceEstimateMessage]:
     reader = SessionReader(path)
     device = reader.metadata["primary_device"]
     return {e.source_seq: e for _, _, e in reader.messages([keys.estimated_cf(device)])}

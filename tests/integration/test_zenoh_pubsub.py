@@ -33,32 +33,9 @@ def wait_for(predicate, timeout_s=TIMEOUT_S, what="condition"):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-@pytest.fixture
-def two_peers():
-    endpoint = listen_endpoint(free_tcp_port())
-    a = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
-    try:
-        b = open_session(
-            ZenohOptions(
-                mode="peer",
-                connect=(endpoint,),
-                listen=("tcp/127.0.0.1:0",),
-                multicast_scouting=False,
-            )
-        )
-    except BaseException:
-        a.close()
-        raise
-    try:
-        wait_for(lambda: a.zid() in b.info.peers_zid(), what="peers to connect")
-        yield a, b
-    finally:
-        b.close()
-        a.close()
-
-
-def test_pub_sub_joint_states_with_congestion_control_block(two_peers):
-    a, b = two_peers
+@pytest.mark.zenoh
+def test_pub_sub_joint_states_with_congestion_control_block(zenoh_pair):
+    a, b = zenoh_pair.listener, zenoh_pair.connector
     key = keys.measured_js("dev1")
     received: queue.Queue[bytes] = queue.Queue()
     sub = b.declare_subscriber(key, lambda sample: received.put(sample.payload.to_bytes()))
@@ -93,8 +70,9 @@ def test_pub_sub_joint_states_with_congestion_control_block(two_peers):
     assert all(m.sequence_gap(x.seq, y.seq) == 0 for x, y in itertools.pairwise(got))
 
 
-def test_liveliness_token_appears_and_disappears(two_peers):
-    a, b = two_peers
+@pytest.mark.zenoh
+def test_liveliness_token_appears_and_disappears(zenoh_pair):
+    a, b = zenoh_pair.listener, zenoh_pair.connector
     events: queue.Queue[tuple[str, str]] = queue.Queue()
 
     def on_change(sample):
@@ -111,12 +89,14 @@ def test_liveliness_token_appears_and_disappears(two_peers):
         sub.undeclare()
 
 
+@pytest.mark.zenoh
 def test_client_without_router_raises_transport_error():
     port = free_tcp_port()  # nothing listens there
     with pytest.raises(TransportError, match="cannot open zenoh session"):
         open_session(ZenohOptions(mode="client", connect=(listen_endpoint(port),)))
 
 
+@pytest.mark.zenoh
 def test_invalid_endpoint_raises_transport_error():
     with pytest.raises(TransportError):
         open_session(ZenohOptions(listen=("tcp/127.0.0.1:notaport",)))

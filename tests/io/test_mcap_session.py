@@ -27,7 +27,7 @@ def joint_state(i, n=3, t0=T0):
 
 
 def force_estimate(i):
-    return m.ForceEstimate(
+    return m.ForceEstimateMessage(
         i,
         T0 + i * 1_000_000 + 300_000,
         i,
@@ -230,7 +230,7 @@ while True:
     js = m.JointState(i, t, (0.1, 0.2, 0.3), (0.0,) * 3, (0.01,) * 3)
     w.write(keys.measured_js("slave"), js, t)
     w.write(keys.estimated_cf("slave"),
-            m.ForceEstimate(i, t, i, (0.0, -1.0, 0.0), (0.1,) * 3, (True,) * 3, (1.0,) * 3,
+            m.ForceEstimateMessage(i, t, i, (0.0, -1.0, 0.0), (0.1,) * 3, (True,) * 3, (1.0,) * 3,
                             (0.0,) * 3, (0.0,) * 3), t)
     i += 1
     if w.messages_durable != last:

@@ -11,16 +11,10 @@ from teleop_force.cli.main import main
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import BasisSpec, FoundEffect, effect_from_dict
 from teleop_force.io.interchange_csv import Recording, write_interchange_csv
-from teleop_force.residual.loop import ResidualOptions, trace_residual
+from teleop_force.residual.loop import trace_residual
+from teleop_force.residual.options import ResidualOptions
 from teleop_force.robots.registry import resolve_robot
-
-DATASET = (
-    Path(__file__).resolve().parents[2].parent
-    / "shared"
-    / "datasets"
-    / "dvrk_mtm"
-    / "mtm_joint4_cable_test_results.csv"
-)
+from tests.shared_data import require
 
 
 def _sweep(cable: bool, seed: int = 0) -> Recording:
@@ -103,9 +97,8 @@ def test_residual_cli_takes_model_coordinate_friction_and_offsets(tmp_path: Path
     assert payload["after"][0] < 0.5 * payload["before"][0]
 
 
-@pytest.mark.skipif(not DATASET.exists(), reason=f"shared dataset not present at {DATASET}")
 def test_measured_dvrk_cable_sweep_meets_the_target() -> None:
-    raw = np.loadtxt(DATASET, delimiter=",")
+    raw = np.loadtxt(require("dvrk_mtm", "mtm_joint4_cable_test_results.csv"), delimiter=",")
     t = np.arange(raw.shape[0]) / 200.0
     recording = Recording(t, raw[:, [0]], raw[:, [2]])
     report = trace_residual([recording], resolve_robot("none", 1), ResidualOptions())
@@ -121,7 +114,8 @@ def test_friction_controls_reject_a_velocity_function_in_disguise() -> None:
     a direction-modulated smooth function of q1 explains the friction on held-out blocks as
     well as the friction shapes do: only the control can tell them apart.
     """
-    from teleop_force.residual.loop import _control_gain, _Design
+    from teleop_force.residual.controls import control_gain
+    from teleop_force.residual.scoring import JointDesign
 
     rng = np.random.default_rng(3)
     t = np.arange(20000) * 1e-3
@@ -131,7 +125,7 @@ def test_friction_controls_reject_a_velocity_function_in_disguise() -> None:
     friction = 0.02 * np.tanh(qd1 / 0.05) * np.exp(-np.abs(qd1) / 0.3)
     y = friction + 1e-4 * rng.normal(size=t.size)
     base = np.stack([np.ones_like(t), np.sign(qd1), qd1], axis=1)
-    control = _Design(
+    control = JointDesign(
         np.concatenate(
             [
                 base,
@@ -150,11 +144,11 @@ def test_friction_controls_reject_a_velocity_function_in_disguise() -> None:
     disguised = np.stack(
         [np.sign(qd1) * np.exp(-(((q1 - c) / 0.3) ** 2)) for c in np.linspace(-1, 1, 6)], axis=1
     )
-    plain = _Design(base, y, folds, 5, 1e-8)
+    plain = JointDesign(base, y, folds, 5, 1e-8)
     plain_gain = 1 - np.sqrt(plain.held_out_errors(disguised).sum() / plain.held_out_errors().sum())
     assert plain_gain > 0.2  # without the control it would be accepted
-    assert _control_gain(control, disguised) < 0.05
-    assert _control_gain(None, disguised) == 1.0
+    assert control_gain(control, disguised) < 0.05
+    assert control_gain(None, disguised) == 1.0
 
 
 def test_min_control_gain_is_validated() -> None:
@@ -170,7 +164,8 @@ def test_reversal_controls_reject_a_reversal_transient_in_disguise() -> None:
     On a sinusoid the reversals happen at the two extreme angles, so a transient that decays
     with the displacement since the reversal is a function of q1 on each half cycle.
     """
-    from teleop_force.residual.loop import _control_gain, _Design, reversal_transient_basis
+    from teleop_force.residual.controls import control_gain, reversal_transient_basis
+    from teleop_force.residual.scoring import JointDesign
 
     rng = np.random.default_rng(4)
     t = np.arange(20000) * 1e-3
@@ -182,14 +177,14 @@ def test_reversal_controls_reject_a_reversal_transient_in_disguise() -> None:
     y = transient + 1e-4 * rng.normal(size=t.size)
     base = np.stack([np.ones_like(t), np.sign(qd1), qd1], axis=1)
     controls = reversal_transient_basis(t, q1, qd1)
-    control = _Design(np.concatenate([base, controls], axis=1), y, folds, 5, 1e-8)
+    control = JointDesign(np.concatenate([base, controls], axis=1), y, folds, 5, 1e-8)
     centres = np.linspace(-1, 1, 6)
     disguised = np.stack([np.sign(qd1) * np.exp(-(((q1 - c) / 0.3) ** 2)) for c in centres], axis=1)
-    plain = _Design(base, y, folds, 5, 1e-8)
+    plain = JointDesign(base, y, folds, 5, 1e-8)
     plain_errors = plain.held_out_errors(disguised).sum()
     plain_gain = 1 - np.sqrt(plain_errors / plain.held_out_errors().sum())
     assert plain_gain > 2 * ResidualOptions().min_rms_gain  # without the controls: accepted
-    assert _control_gain(control, disguised) < ResidualOptions().min_control_gain
+    assert control_gain(control, disguised) < ResidualOptions().min_control_gain
 
 
 @settings(max_examples=60, deadline=None)
@@ -198,7 +193,7 @@ def test_reversal_controls_reject_a_reversal_transient_in_disguise() -> None:
     st.floats(0.0, 0.01),
 )
 def test_reversal_basis_is_bounded_odd_and_resets_at_reversals(velocities, dt_s) -> None:
-    from teleop_force.residual.loop import REVERSAL_DEAD_BAND_RAD_S, reversal_transient_basis
+    from teleop_force.residual.controls import REVERSAL_DEAD_BAND_RAD_S, reversal_transient_basis
 
     qd = np.asarray(velocities)
     t = np.arange(qd.size) * (dt_s + 1e-3)
@@ -311,7 +306,7 @@ def test_unknown_effect_placement_is_refused() -> None:
 
 
 def test_effect_reaches_are_the_rows_of_the_coupling() -> None:
-    from teleop_force.residual.loop import effect_reaches
+    from teleop_force.residual.placement import effect_reaches
     from teleop_force.robots.dvrk_mtm import CABLE_RATIO, dvrk_mtm_description
 
     reaches = effect_reaches(dvrk_mtm_description())
@@ -338,7 +333,7 @@ def test_found_effect_reach_spreads_its_torque_and_round_trips() -> None:
 
 
 def test_trajectory_period_of_repeated_and_unrepeated_motion() -> None:
-    from teleop_force.residual.loop import trajectory_period
+    from teleop_force.residual.scoring import trajectory_period
 
     t = np.arange(0.0, 20.0, 0.005)
     q = np.column_stack((np.sin(2 * np.pi * t / 3.0), 0.2 * np.cos(4 * np.pi * t / 3.0)))
@@ -361,7 +356,7 @@ def test_trajectory_period_finds_the_period_of_a_fourier_trajectory(
     period: float, amplitudes: list[float], phases: list[float]
 ) -> None:
     """A Fourier trajectory (harmonics 1-3 of the base frequency) repeats every period."""
-    from teleop_force.residual.loop import trajectory_period
+    from teleop_force.residual.scoring import trajectory_period
 
     t = np.arange(0.0, 2.5 * period, 0.01)
     q = sum(
@@ -375,7 +370,7 @@ def test_trajectory_period_finds_the_period_of_a_fourier_trajectory(
 def test_periodic_recordings_also_get_phase_folds() -> None:
     from teleop_force.identification.filtered_regressor import FilterConfig
     from teleop_force.identification.pipeline import prepare
-    from teleop_force.residual.loop import _select_rows
+    from teleop_force.residual.samples import select_samples
 
     t = np.arange(0.0, 30.0, 0.005)
     q = np.column_stack((np.sin(2 * np.pi * t / 7.0), np.cos(4 * np.pi * t / 7.0)))
@@ -383,7 +378,7 @@ def test_periodic_recordings_also_get_phase_folds() -> None:
     description = resolve_robot("none", 2)
     options = ResidualOptions()
     prepared, _ = prepare([periodic], description, FilterConfig())
-    data = _select_rows(prepared, options, np.zeros(0))
+    data = select_samples(prepared, options, np.zeros(0))
     assert data.phase_folds is not None
     # a fold held out by phase is the same stretch of every period: the fold is a function
     # of the phase alone (up to the period's one-sample resolution at block edges)
@@ -394,11 +389,12 @@ def test_periodic_recordings_also_get_phase_folds() -> None:
     assert np.mean(data.phase_folds == expected) > 0.97
     assert np.mean(data.folds == expected) < 0.5  # time blocks are not that
     assert (
-        _select_rows(prepared, ResidualOptions(phase_folds=False), np.zeros(0)).phase_folds is None
+        select_samples(prepared, ResidualOptions(phase_folds=False), np.zeros(0)).phase_folds
+        is None
     )
     swept, _ = _coupled_cable(spring=False)
     prepared, _ = prepare([swept], description, FilterConfig())
-    assert _select_rows(prepared, options, np.zeros(0)).phase_folds is None
+    assert select_samples(prepared, options, np.zeros(0)).phase_folds is None
 
 
 def test_model_coordinate_friction_residual_adds_nothing_without_the_spring() -> None:
@@ -411,3 +407,39 @@ def test_model_coordinate_friction_residual_adds_nothing_without_the_spring() ->
 def test_unknown_residual_friction_is_refused() -> None:
     with pytest.raises(ValueError, match="residual friction"):
         ResidualOptions(friction="stribeck")
+
+
+def test_choices_are_stored_as_enums_and_auto_placement_follows_the_friction() -> None:
+    from teleop_force.friction.kinds import FrictionKind
+    from teleop_force.residual.options import EffectPlacement
+
+    options = ResidualOptions(friction="model-cv", effect_placement="auto")
+    assert options.friction is FrictionKind.MODEL_CV
+    assert options.effect_placement is EffectPlacement.AUTO
+    assert options.placement is EffectPlacement.EITHER
+    assert ResidualOptions().placement is EffectPlacement.MOTOR  # wn
+    assert ResidualOptions(friction="model-cv", effect_placement="model").placement is (
+        EffectPlacement.MODEL
+    )
+    assert ResidualOptions(friction=FrictionKind.CV) == ResidualOptions(friction="cv")
+
+
+def test_report_history_rejections_and_plots_of_a_traced_sweep(tmp_path: Path) -> None:
+    """Every accepted effect has a history entry and a plot; every rejection names its gain."""
+    from teleop_force.residual.report import write_residual_report
+
+    report = trace_residual([_sweep(cable=True)], resolve_robot("none", 1))
+    assert len(report.history) == len(report.effects) == len(report.effect_plots) >= 1
+    for entry, effect, plot in zip(
+        report.history, report.effects, report.effect_plots, strict=True
+    ):
+        assert entry["effect"] == effect.spec.describe() == plot.spec.describe()
+        assert entry["gain"] >= ResidualOptions().min_rms_gain
+        assert plot.x.shape == plot.before.shape == plot.after.shape == (report.samples,)
+        assert np.std(plot.after) < np.std(plot.before)
+    for rejected in report.rejected:
+        assert {"effect", "gain"} <= set(rejected)
+        assert "control_gain" in rejected or "whole_model_after" in rejected
+    json.dumps([*report.history, *report.rejected])  # the blind-test report saves them
+    write_residual_report(report, tmp_path)
+    assert (tmp_path / "effect_1.png").exists() and (tmp_path / "model.json").exists()

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from teleop_force.errors import ConfigurationError, DataError, TeleopForceError
-from teleop_force.robots.device import Device, DeviceClosedError, JointState, TorqueCommand
+from teleop_force.robots.device import Device, DeviceClosedError, DeviceReading, TorqueCommand
 
 
 class _Recorder(Device):
@@ -22,10 +22,10 @@ class _Recorder(Device):
     def control_period_s(self) -> float:
         return 1e-3
 
-    def read(self) -> JointState:
+    def read(self) -> DeviceReading:
         self._check_open()
         last = self.sent[-1] if self.sent else np.zeros(2)
-        return JointState(t_s=self.ticks * 1e-3, q_rad=np.zeros(2), tau_nm=last)
+        return DeviceReading(t_s=self.ticks * 1e-3, q_rad=np.zeros(2), tau_nm=last)
 
     def _send_torque(self, tau_nm: np.ndarray) -> None:
         self.sent.append(tau_nm)
@@ -40,7 +40,7 @@ class _Recorder(Device):
 
 def test_joint_state_is_frozen_and_validated() -> None:
     q = np.array([0.1, 0.2, 0.3])
-    state = JointState(
+    state = DeviceReading(
         t_s=1, q_rad=q, tau_nm=np.array([0.0, 0.1, 0.2]), f_tip_in_base_n=np.array([0.0, -1.0, 0.0])
     )
     q[0] = 9.0
@@ -48,13 +48,13 @@ def test_joint_state_is_frozen_and_validated() -> None:
     assert state.n_joints == 3 and isinstance(state.t_s, float)
     with pytest.raises(ValueError):
         state.q_rad[0] = 1.0  # read-only
-    assert JointState(0.0, np.zeros(3), np.zeros(3)).f_tip_in_base_n is None
+    assert DeviceReading(0.0, np.zeros(3), np.zeros(3)).f_tip_in_base_n is None
     with pytest.raises(DataError):
-        JointState(0.0, np.zeros(3), np.zeros(2))
+        DeviceReading(0.0, np.zeros(3), np.zeros(2))
     with pytest.raises(DataError):
-        JointState(0.0, np.zeros(3), np.zeros(3), f_tip_in_base_n=np.zeros(2))
+        DeviceReading(0.0, np.zeros(3), np.zeros(3), f_tip_in_base_n=np.zeros(2))
     with pytest.raises(DataError):
-        JointState(0.0, np.zeros((3, 1)), np.zeros(3))
+        DeviceReading(0.0, np.zeros((3, 1)), np.zeros(3))
 
 
 def test_command_is_clipped_and_reported() -> None:

@@ -17,8 +17,8 @@ from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import declare_data_publisher, query_json
-from teleop_force.transport.session import ZenohOptions, open_session
 
+pytestmark = pytest.mark.zenoh
 DEVICE = "svc-test"
 
 
@@ -28,12 +28,9 @@ def model():
 
 
 @pytest.fixture
-def session():
-    s = open_session(
-        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
-    )
-    yield s
-    s.close()
+def session(zenoh_session):
+    """The service's and the test's loopback peer (tests/conftest.py)."""
+    return zenoh_session
 
 
 def joint_states(n=300, seq0=0, t0_ns=1_700_000_000_000_000_000):

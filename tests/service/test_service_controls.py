@@ -27,12 +27,6 @@ from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import declare_data_publisher
-from teleop_force.transport.session import (
-    ZenohOptions,
-    free_tcp_port,
-    listen_endpoint,
-    open_session,
-)
 from web.control import ServiceClient
 
 DEVICE = "ctl-test"
@@ -87,25 +81,19 @@ def tree(tmp_path):
 
 
 @pytest.fixture
-def system(tree):
+def system(tree, zenoh_pair):
     """The service on its own session, and a client session connected over loopback TCP."""
-    endpoint = listen_endpoint(free_tcp_port())
-    service_session = open_session(
-        ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False)
-    )
-    client_session = open_session(
-        ZenohOptions(mode="peer", connect=(endpoint,), listen=(), multicast_scouting=False)
-    )
+    service_session, client_session = zenoh_pair.listener, zenoh_pair.connector
     config = ServiceConfig(
         device=DEVICE, models_dirs=(tree["models"],), record_dirs=(tree["records"],)
     )
     model = DynamicModel.load(DEFAULT_MODEL_PATH)
     service = ForceService(service_session, model, config, model_path=DEFAULT_MODEL_PATH).start()
     client = ServiceClient(client_session, DEVICE, timeout_s=5.0)
-    got: list[m.ForceEstimate] = []
+    got: list[m.ForceEstimateMessage] = []
     sub = client_session.declare_subscriber(
         keys.estimated_cf(DEVICE),
-        lambda s: got.append(m.ForceEstimate.decode(s.payload.to_bytes())),
+        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
     )
     pub = declare_data_publisher(client_session, keys.measured_js(DEVICE))
     wait_until(lambda: client.fetch_stats(timeout_s=1.0).ok, 20.0)
@@ -118,8 +106,6 @@ def system(tree):
         sub.undeclare()
         pub.undeclare()
         service.close()
-        client_session.close()
-        service_session.close()
 
 
 def stats(system) -> dict:
@@ -143,6 +129,7 @@ def test_default_folders_are_the_projects():
     assert record_folders().folders == ((PROJECT_ROOT / "recordings").resolve(),)
 
 
+@pytest.mark.zenoh
 def test_a_model_is_loaded_between_samples_and_reported(system):
     client, got, pub, tree = system["client"], system["got"], system["pub"], system["tree"]
     before = joint_states(300)
@@ -172,6 +159,7 @@ def test_a_model_is_loaded_between_samples_and_reported(system):
     assert served.ok and served.data == DynamicModel.load(target).to_dict()
 
 
+@pytest.mark.zenoh
 def test_loading_while_streaming_loses_nothing(system):
     client, got, pub, tree = system["client"], system["got"], system["pub"], system["tree"]
     stream = joint_states(1500)
@@ -222,6 +210,7 @@ def refused_loads(tree) -> list[object]:
     ]  # fmt: skip
 
 
+@pytest.mark.zenoh
 def test_loads_outside_the_allowed_folders_or_of_bad_files_are_refused(system):
     client, session, tree = system["client"], system["session"], system["tree"]
     paths = refused_loads(tree)
@@ -246,6 +235,7 @@ def test_loads_outside_the_allowed_folders_or_of_bad_files_are_refused(system):
     assert client.fetch_model().data == DynamicModel.load(DEFAULT_MODEL_PATH).to_dict()
 
 
+@pytest.mark.zenoh
 def test_recording_starts_and_stops_on_request(system):
     client, got, pub, tree = system["client"], system["got"], system["pub"], system["tree"]
     target = tree["records"] / "run.mcap"
@@ -279,6 +269,7 @@ def test_recording_starts_and_stops_on_request(system):
     assert SessionReader(tree["records"] / "second.mcap").message_counts == {}
 
 
+@pytest.mark.zenoh
 def test_recordings_outside_the_allowed_folders_are_refused(system):
     client, tree = system["client"], system["tree"]
     records, outside = tree["records"], tree["outside"]

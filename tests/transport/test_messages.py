@@ -48,7 +48,9 @@ def force_estimates(draw):
     tau, cov, motor, model = draw(joint_vectors(4, n=n))
     flags = tuple(draw(st.lists(st.booleans(), min_size=n, max_size=n)))
     f = tuple(draw(st.lists(st.floats(allow_infinity=False), min_size=3, max_size=3)))
-    return m.ForceEstimate(draw(seqs), draw(stamps), draw(seqs), f, tau, flags, cov, motor, model)
+    return m.ForceEstimateMessage(
+        draw(seqs), draw(stamps), draw(seqs), f, tau, flags, cov, motor, model
+    )
 
 
 @st.composite
@@ -64,7 +66,7 @@ any_message = st.one_of(
 
 def same(a, b) -> bool:
     """Equality that treats NaN force components as equal."""
-    if isinstance(a, m.ForceEstimate) and isinstance(b, m.ForceEstimate):
+    if isinstance(a, m.ForceEstimateMessage) and isinstance(b, m.ForceEstimateMessage):
         fa = tuple("nan" if math.isnan(x) else x for x in a.f_n)
         fb = tuple("nan" if math.isnan(x) else x for x in b.f_n)
         return fa == fb and a.to_json_dict() == b.to_json_dict()
@@ -92,7 +94,7 @@ def test_json_round_trip(message):
 
 
 @pytest.mark.parametrize(
-    "cls", [m.JointState, m.JointSetpoint, m.ContactForce, m.ForceEstimate, m.Status]
+    "cls", [m.JointState, m.JointSetpoint, m.ContactForce, m.ForceEstimateMessage, m.Status]
 )
 def test_json_schema_describes_every_field(cls):
     schema = cls.json_schema()
@@ -108,7 +110,9 @@ def test_layout_sizes_match_the_docstring():
     assert len(js.encode()) == 17 + 24 * n
     assert len(m.JointSetpoint(1, 2, (0.0,) * n).encode()) == 17 + 8 * n
     assert len(m.ContactForce(1, 2, (0.0, 0.0, 0.0)).encode()) == 40
-    fe = m.ForceEstimate(1, 2, 3, (0.0,) * 3, (0.0,) * n, (True,) * n, (0,) * n, (0,) * n, (0,) * n)
+    fe = m.ForceEstimateMessage(
+        1, 2, 3, (0.0,) * 3, (0.0,) * n, (True,) * n, (0,) * n, (0,) * n, (0,) * n
+    )
     assert len(fe.encode()) == 45 + 32 * n + 1
     assert len(m.Status(1, 2, m.SafetyState.HOLDING, "ab").encode()) == 19 + 2
 
@@ -122,11 +126,13 @@ def test_joint_state_field_offsets():
 
 def test_force_estimate_bitmask():
     flags = (True, False, True, True, False, False, False, False, True)
-    fe = m.ForceEstimate(0, 0, 0, (0.0,) * 3, (0.0,) * 9, flags, (0,) * 9, (0,) * 9, (0,) * 9)
+    fe = m.ForceEstimateMessage(
+        0, 0, 0, (0.0,) * 3, (0.0,) * 9, flags, (0,) * 9, (0,) * 9, (0,) * 9
+    )
     data = fe.encode()
     assert data[-2:] == bytes([0b00001101, 0b00000001])
     assert fe.on_trained_ground_mask == 0b1_0000_1101
-    assert m.ForceEstimate.decode(data).on_trained_ground == flags
+    assert m.ForceEstimateMessage.decode(data).on_trained_ground == flags
 
 
 def test_version_mismatch_is_rejected():
@@ -177,23 +183,25 @@ def test_non_finite_joint_values_rejected(bad):
 
 def test_force_estimate_nan_force_allowed_inf_not():
     args = ((0.1,), (True,), (1.0,), (0.0,), (0.0,))
-    nan_fe = m.ForceEstimate(0, 0, 0, (math.nan, 0.0, 0.0), *args)
-    assert math.isnan(m.ForceEstimate.decode(nan_fe.encode()).f_n[0])
+    nan_fe = m.ForceEstimateMessage(0, 0, 0, (math.nan, 0.0, 0.0), *args)
+    assert math.isnan(m.ForceEstimateMessage.decode(nan_fe.encode()).f_n[0])
     assert nan_fe.to_json_dict()["f_n"]["x"] is None
     with pytest.raises(MessageError, match="infinite"):
-        m.ForceEstimate(0, 0, 0, (math.inf, 0.0, 0.0), *args)
+        m.ForceEstimateMessage(0, 0, 0, (math.inf, 0.0, 0.0), *args)
     data = bytearray(nan_fe.encode())
     struct.pack_into("<d", data, 21, math.inf)
     with pytest.raises(MessageError, match="infinite"):
-        m.ForceEstimate.decode(bytes(data))
+        m.ForceEstimateMessage.decode(bytes(data))
 
 
 def test_force_estimate_unused_mask_bits_rejected():
-    fe = m.ForceEstimate(0, 0, 0, (0.0,) * 3, (0.0,) * 3, (True,) * 3, (0,) * 3, (0,) * 3, (0,) * 3)
+    fe = m.ForceEstimateMessage(
+        0, 0, 0, (0.0,) * 3, (0.0,) * 3, (True,) * 3, (0,) * 3, (0,) * 3, (0,) * 3
+    )
     data = bytearray(fe.encode())
     data[-1] |= 0b1000
     with pytest.raises(MessageError, match="bits"):
-        m.ForceEstimate.decode(bytes(data))
+        m.ForceEstimateMessage.decode(bytes(data))
 
 
 def test_status_reason_and_state_checks():
@@ -226,8 +234,8 @@ def test_status_reason_and_state_checks():
         lambda: m.JointState(0, 0, None, (0.0,), (0.0,)),
         lambda: m.JointSetpoint(0, 0, (0.0,) * 256),
         lambda: m.ContactForce(0, 0, (0.0, 1.0)),
-        lambda: m.ForceEstimate(0, 0, 0, (0.0,) * 3, (0.0,), (True, True), (0,), (0,), (0,)),
-        lambda: m.ForceEstimate(0, 0, 0, (0.0,) * 3, (0.0,), 5, (0,), (0,), (0,)),
+        lambda: m.ForceEstimateMessage(0, 0, 0, (0.0,) * 3, (0.0,), (True, True), (0,), (0,), (0,)),
+        lambda: m.ForceEstimateMessage(0, 0, 0, (0.0,) * 3, (0.0,), 5, (0,), (0,), (0,)),
     ],
 )
 def test_invalid_construction_raises_message_error(make):

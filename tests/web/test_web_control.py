@@ -7,7 +7,7 @@ import pytest
 
 from teleop_force.errors import ConfigurationError
 from teleop_force.transport import keys
-from teleop_force.transport.session import ZenohOptions, open_session
+from teleop_force.transport.session import ZenohOptions
 from web.control import (
     ReplayProcess,
     ServiceClient,
@@ -92,14 +92,12 @@ def test_replay_process_start_status_stop():
 
 
 @pytest.fixture
-def session():
-    s = open_session(
-        ZenohOptions(mode="peer", listen=("tcp/127.0.0.1:0",), multicast_scouting=False)
-    )
-    yield s
-    s.close()
+def session(zenoh_session):
+    """The fake service's and the client's loopback peer (tests/conftest.py)."""
+    return zenoh_session
 
 
+@pytest.mark.zenoh
 def test_service_client_round_trips_over_zenoh(session):
     seen = []
 

@@ -21,7 +21,7 @@ def test_plot_frames_bin_every_stream_on_one_axis():
         t_ns = t0 + k * 1_000_000
         f = (0.0, -1.0, 0.0) if k % 500 else (np.nan,) * 3
         tel.on_estimate(
-            m.ForceEstimate(
+            m.ForceEstimateMessage(
                 k, t_ns, k, f, (0.1, 0.2, 0.3), (True,) * 3, (1.0,) * 3, (0.5,) * 3, (0.4,) * 3
             ).encode()
         )

@@ -15,7 +15,7 @@ class Clock:
 
 
 def estimate(seq, trained=(True, True, True), f=(0.1, -1.0, 0.2)):
-    return m.ForceEstimate(
+    return m.ForceEstimateMessage(
         seq, 1_000_000_000 + seq * 1_000_000, seq + 7, f, (0.01, 0.02, 0.03), trained,
         (1.0, 0.5, 0.2), (0.1, 0.2, 0.3), (0.09, 0.19, 0.29),
     ).encode()  # fmt: skip

@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from teleop_force.errors import DataError
-from teleop_force.identification.lowpass import (
+from teleop_force.lowpass import (
     FilteredDerivative,
     LowPass,
     filtered_derivative_batch,

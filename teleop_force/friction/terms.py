@@ -1,0 +1,361 @@
+"""The friction model's terms, each defined once (numba): Coulomb-viscous, Mexican hat, trust.
+
+Every term is one compiled function on floats and small arrays; the batch methods of the
+friction models call it over samples, the streaming estimator once per sample
+(:mod:`teleop_force.estimation.kernels`), and other compiled code may call it directly:
+
+* :func:`coulomb_viscous`: ``a_c sgn(w) + a_v w`` of one velocity ``w``; the velocity of a
+  term is a linear form of the joint velocities (:func:`term_velocity`): ``qd_j`` for
+  :class:`~teleop_force.friction.coulomb_viscous.CoulombViscous`, ``qd_a - qd_b`` for the
+  coupled terms, a coupling row for model-coordinate friction. A *term table* lists them:
+  ``rows`` (T, n) the velocity forms, ``reach`` (T, n) the motor torque per unit of the term's
+  torque, ``parameters`` (2 T,) ``[a_c, a_v]`` per term (:func:`linear_friction_torque_into`);
+* :func:`mexican_hat_r2`: the wavelet ``amp (1 - r2) exp(-r2 / 2)`` of a squared normalised
+  distance ``r2`` (its ``exp`` inline, so that loops over wavelets vectorise);
+* :func:`grid_density` and :func:`coverage_trust`: a coverage grid's smoothed density,
+  multilinear between cell centres and 0 one cell outside (as ``scipy.ndimage.map_coordinates``
+  with ``order=1, mode="grid-constant"``), and the smoothstep trust ramp over it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from teleop_force.compiled import njit_cached
+
+_LOG2E = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+
+# -- Coulomb + viscous -------------------------------------------------------------------------
+
+
+@njit_cached()
+def sign(x: float) -> float:  # pragma: no cover - compiled
+    """``np.sign`` of a float (NaN stays NaN)."""
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x * 0.0
+
+
+@njit_cached()
+def coulomb_viscous(w: float, a_c: float, a_v: float) -> float:  # pragma: no cover - compiled
+    """Coulomb + viscous friction ``a_c sgn(w) + a_v w`` of the velocity ``w``."""
+    return a_c * sign(w) + a_v * w
+
+
+@njit_cached()
+def term_velocity(row: np.ndarray, qd: np.ndarray) -> float:  # pragma: no cover - compiled
+    """``row @ qd`` over the nonzero entries of ``row`` (``qd_a - qd_b`` exactly for ±1 rows)."""
+    w = 0.0
+    for i in range(row.size):
+        r = row[i]
+        if r == 1.0:
+            w += qd[i]
+        elif r == -1.0:
+            w -= qd[i]
+        elif r != 0.0:
+            w += r * qd[i]
+    return w
+
+
+@njit_cached()
+def linear_friction_torque_into(
+    qd: np.ndarray, rows: np.ndarray, reach: np.ndarray, parameters: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Add the torque of every term of a term table at one sample ``qd`` (n,) to ``out`` (n,)."""
+    for t in range(rows.shape[0]):
+        f = coulomb_viscous(term_velocity(rows[t], qd), parameters[2 * t], parameters[2 * t + 1])
+        for j in range(out.size):
+            weight = reach[t, j]
+            if weight == 1.0:
+                out[j] += f
+            elif weight != 0.0:
+                out[j] += weight * f
+
+
+@njit_cached()
+def linear_friction_torque(
+    qd: np.ndarray, rows: np.ndarray, reach: np.ndarray, parameters: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Torque of a term table at every sample: ``qd`` (N, n) -> (N, n)."""
+    out = np.zeros((qd.shape[0], reach.shape[1]))
+    for k in range(qd.shape[0]):
+        linear_friction_torque_into(qd[k], rows, reach, parameters, out[k])
+    return out
+
+
+@njit_cached()
+def linear_friction_basis(
+    qd: np.ndarray, rows: np.ndarray, first: int, stop: int
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Columns ``[sgn(w_t), w_t]`` of the terms ``first..stop-1``: (N, n) -> (N, 2 (stop - first)).
+
+    ``coulomb_viscous(w, a_c, a_v) = [sgn(w), w] @ [a_c, a_v]``: the regressor of the terms.
+    """
+    out = np.empty((qd.shape[0], 2 * (stop - first)))
+    for k in range(qd.shape[0]):
+        for t in range(first, stop):
+            w = term_velocity(rows[t], qd[k])
+            out[k, 2 * (t - first)] = sign(w)
+            out[k, 2 * (t - first) + 1] = w
+    return out
+
+
+# -- the Mexican hat -----------------------------------------------------------------------------
+
+
+@njit_cached(fastmath={"contract"})
+def exp_inline(h: float) -> float:  # pragma: no cover - compiled
+    """``exp(h)`` for ``h <= 0`` (clamped at -708), inline so that loops vectorise.
+
+    ``exp(h) = 2^n exp(r)``, ``n = round(h / ln 2)``, ``|r| <= ln(2) / 2`` with a two-part
+    ``ln 2``, ``exp(r)`` by its Taylor polynomial of degree 13 (truncation < 2.2e-16 relative),
+    ``2^n`` built from its exponent bits (LLVM has no vector ``exp`` without Intel's SVML).
+    """
+    h = max(h, -708.0)
+    fn = math.floor(h * _LOG2E + 0.5)
+    r = (h - fn * _LN2_HI) - fn * _LN2_LO
+    q = 1.0 / 6227020800.0
+    q = q * r + 1.0 / 479001600.0
+    q = q * r + 1.0 / 39916800.0
+    q = q * r + 1.0 / 3628800.0
+    q = q * r + 1.0 / 362880.0
+    q = q * r + 1.0 / 40320.0
+    q = q * r + 1.0 / 5040.0
+    q = q * r + 1.0 / 720.0
+    q = q * r + 1.0 / 120.0
+    q = q * r + 1.0 / 24.0
+    q = q * r + 1.0 / 6.0
+    q = q * r + 0.5
+    q = q * r + 1.0
+    q = q * r + 1.0
+    two_n = np.int64((np.int64(fn) + 1023) << 52).view(np.float64)
+    return q * two_n
+
+
+@njit_cached(fastmath={"contract"})
+def mexican_hat_r2(r2: float, amplitude: float) -> float:  # pragma: no cover - compiled
+    """Return the Mexican hat ``amplitude (1 - r2) exp(-r2 / 2)`` at squared distance ``r2``."""
+    return amplitude * (1.0 - r2) * exp_inline(-0.5 * r2)
+
+
+@njit_cached(fastmath={"contract"})
+def mexican_hat_values(r2: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`mexican_hat_r2` (amplitude 1) of every entry of a 1-D array."""
+    out = np.empty(r2.size)
+    for k in range(r2.size):
+        out[k] = mexican_hat_r2(r2[k], 1.0)
+    return out
+
+
+@njit_cached(fastmath={"contract"})
+def wavelet_block(
+    x: np.ndarray, centre_scaled: np.ndarray, inv_scale: np.ndarray, amplitude: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Wavelets of one joint network at every sample: ``x`` (N, d) -> (N, P).
+
+    Wavelet ``p`` is ``mexican_hat_r2(|x inv_scale[p] - centre_scaled[p]|^2, amplitude[p])``.
+    """
+    n, d = x.shape
+    p = inv_scale.size
+    out = np.empty((n, p))
+    for k in range(n):
+        for c in range(p):
+            inv = inv_scale[c]
+            r2 = 0.0
+            for i in range(d):
+                u = x[k, i] * inv - centre_scaled[c, i]
+                r2 += u * u
+            out[k, c] = mexican_hat_r2(r2, amplitude[c])
+    return out
+
+
+@njit_cached(fastmath={"contract"})
+def pool_wavelets(
+    qd: np.ndarray,
+    input_index: np.ndarray,
+    centre_scaled: np.ndarray,
+    inv_scale: np.ndarray,
+    amplitude: np.ndarray,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Wavelets of any joints at every sample: ``qd`` (N, n) -> (N, P).
+
+    ``input_index`` (P, dmax): the velocity each input column reads, ``n`` or more (padding)
+    for unused columns.
+    """
+    n_samples, n = qd.shape
+    p, dmax = input_index.shape
+    out = np.empty((n_samples, p))
+    for k in range(n_samples):
+        for c in range(p):
+            inv = inv_scale[c]
+            r2 = 0.0
+            for i in range(dmax):
+                index = input_index[c, i]
+                if index < n:
+                    u = qd[k, index] * inv - centre_scaled[c, i]
+                    r2 += u * u
+            out[k, c] = mexican_hat_r2(r2, amplitude[c])
+    return out
+
+
+@njit_cached(fastmath={"contract"})
+def wavelet_network_torque_into(
+    qd: np.ndarray, inputs: np.ndarray, table: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Add the torque of a wavelet table at one sample ``qd`` (n,) to ``out`` (n,).
+
+    ``inputs`` (P, d): the velocity each wavelet's input column reads (-1: unused);
+    ``table`` (P, d + 1 + n): ``centre_scaled`` (d), ``inv_scale``, then the wavelet's
+    weight ``amplitude * coefficient`` on every joint (a wavelet that several joints' networks
+    share is one row).
+    """
+    p, d = inputs.shape
+    n = out.size
+    for c in range(p):
+        inv = table[c, d]
+        r2 = 0.0
+        for i in range(d):
+            index = inputs[c, i]
+            if index >= 0:
+                u = qd[index] * inv - table[c, i]
+                r2 += u * u
+        psi = mexican_hat_r2(r2, 1.0)
+        for j in range(n):
+            out[j] += psi * table[c, d + 1 + j]
+
+
+# -- coverage trust ----------------------------------------------------------------------------
+
+
+@njit_cached()
+def grid_density(
+    qd: np.ndarray,
+    inputs: np.ndarray,
+    lo: np.ndarray,
+    cell: np.ndarray,
+    shape: np.ndarray,
+    values: np.ndarray,
+) -> float:  # pragma: no cover - compiled
+    """Density of a grid (``values`` flat, C order) at one sample, multilinear, >= 0.
+
+    Cell centres are at ``lo + (i + 0.5) cell``; between them the value is interpolated,
+    outside the grid the missing corners count 0 (and a non-finite velocity gives 0).
+    """
+    d = inputs.size
+    for axis in range(d):
+        c = (qd[inputs[axis]] - lo[axis]) / cell[axis] - 0.5
+        if not (c > -1.0 and c < shape[axis]):  # also NaN
+            return 0.0
+    total = 0.0
+    for corner in range(1 << d):
+        index = 0
+        weight = 1.0
+        inside = True
+        for axis in range(d):
+            c = (qd[inputs[axis]] - lo[axis]) / cell[axis] - 0.5
+            base = math.floor(c)
+            frac = c - base
+            upper = (corner >> axis) & 1
+            k = int(base) + upper
+            if k < 0 or k >= shape[axis]:
+                inside = False
+                break
+            index = index * shape[axis] + k
+            weight *= frac if upper else 1.0 - frac
+        if inside:
+            total += weight * values[index]
+    return total if total > 0.0 else 0.0
+
+
+@njit_cached()
+def smoothstep(s: float) -> float:  # pragma: no cover - compiled
+    """``3 s^2 - 2 s^3`` of ``s`` clipped to [0, 1]."""
+    s = 0.0 if s < 0.0 else (1.0 if s > 1.0 else s)
+    return s * s * (3.0 - 2.0 * s)
+
+
+@njit_cached()
+def coverage_trust(density: float, untrained: float, trained: float) -> float:  # pragma: no cover
+    """Trust in [0, 1] at a smoothed density: 0 at ``untrained`` or less, 1 at ``trained``."""
+    return smoothstep((density - untrained) / (trained - untrained))
+
+
+@njit_cached()
+def grid_density_batch(
+    qd: np.ndarray,
+    inputs: np.ndarray,
+    lo: np.ndarray,
+    cell: np.ndarray,
+    shape: np.ndarray,
+    values: np.ndarray,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`grid_density` at every sample: ``qd`` (N, n) -> (N,)."""
+    out = np.empty(qd.shape[0])
+    for k in range(qd.shape[0]):
+        out[k] = grid_density(qd[k], inputs, lo, cell, shape, values)
+    return out
+
+
+@njit_cached()
+def smoothstep_values(s: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`smoothstep` of every entry of a 1-D array."""
+    out = np.empty(s.size)
+    for k in range(s.size):
+        out[k] = smoothstep(s[k])
+    return out
+
+
+@njit_cached()
+def coverage_trust_into(
+    qd: np.ndarray,
+    grid_ints: np.ndarray,
+    grid_floats: np.ndarray,
+    values: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Trust of every joint's grid at one sample ``qd`` into ``out`` (J,), from a grid table.
+
+    Row ``j`` of ``grid_ints`` is ``[d, offset, inputs (dmax), shape (dmax)]``, of
+    ``grid_floats`` ``[untrained, trained, lo (dmax), cell (dmax)]``; grid ``j``'s density
+    values are ``values[offset:offset + prod(shape)]`` (C order).
+    """
+    dmax = (grid_ints.shape[1] - 2) // 2
+    for j in range(grid_ints.shape[0]):
+        d = grid_ints[j, 0]
+        start = grid_ints[j, 1]
+        density = grid_density(
+            qd,
+            grid_ints[j, 2 : 2 + d],
+            grid_floats[j, 2 : 2 + d],
+            grid_floats[j, 2 + dmax : 2 + dmax + d],
+            grid_ints[j, 2 + dmax : 2 + dmax + d],
+            values[start:],
+        )
+        out[j] = coverage_trust(density, grid_floats[j, 0], grid_floats[j, 1])
+
+
+def term_table_torque(
+    qd: np.ndarray, rows: np.ndarray, reach: np.ndarray, parameters: np.ndarray, kind: str
+) -> np.ndarray:
+    """Torque of a term table at ``qd``: (n,) -> (n,), (N, n) -> (N, n) (ModelError on a bad shape).
+
+    The batch ``torque`` of the Coulomb-viscous models: :func:`linear_friction_torque`.
+    """
+    from teleop_force.errors import ModelError
+
+    qd = np.asarray(qd, dtype=float)
+    single = qd.ndim == 1
+    batch = qd.reshape(1, -1) if single else qd
+    n = rows.shape[1]
+    if batch.ndim != 2 or batch.shape[1] != n:
+        raise ModelError(f"{kind}: expected {n} velocities, got {batch.shape[-1]}")
+    out = linear_friction_torque(
+        np.ascontiguousarray(batch), rows, reach, np.ascontiguousarray(parameters, dtype=float)
+    )
+    return out[0] if single else out

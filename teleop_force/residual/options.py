@@ -1,0 +1,105 @@
+"""Knobs of the residual loop and its typed choices.
+
+Light on purpose: the command line lists the choices from these enums at start-up, without
+importing the loop (NumPy, SciPy, the identification pipeline).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+from teleop_force.errors import ConfigurationError
+from teleop_force.friction.kinds import FrictionKind
+
+
+class EffectPlacement(StrEnum):
+    """Where an effect found on motor ``j`` acts; the value is its name on the command line."""
+
+    #: ``either`` with friction in model coordinates, else ``motor``.
+    AUTO = "auto"
+    #: On motor ``j`` alone.
+    MOTOR = "motor"
+    #: At model joint ``j``, reaching the motors through the coupling (``FoundEffect.reach``).
+    MODEL = "model"
+    #: The model joint if the whole model confirms it there, else motor ``j`` alone.
+    EITHER = "either"
+
+    def resolved(self, friction: FrictionKind) -> EffectPlacement:
+        """Return the placement ``auto`` stands for with ``friction`` (others: themselves)."""
+        if self is not EffectPlacement.AUTO:
+            return self
+        if friction is FrictionKind.MODEL_CV:
+            return EffectPlacement.EITHER
+        return EffectPlacement.MOTOR
+
+
+#: The friction kinds ``teleop-force residual --friction`` offers: the CV laws (the wavelet
+#: network, :class:`ResidualOptions`' default, only through the library).
+COMMAND_LINE_FRICTION_KINDS: tuple[FrictionKind, ...] = (
+    FrictionKind.CV,
+    FrictionKind.COUPLED_CV,
+    FrictionKind.MODEL_CV,
+)
+
+
+@dataclass(frozen=True)
+class ResidualOptions:
+    """Knobs of the residual loop.
+
+    ``friction`` and ``effect_placement`` also take their names as strings (the enums'
+    values); they are stored as the enums.
+    """
+
+    folds: int = 5
+    blocks_per_fold: int = 4
+    min_rms_gain: float = 0.05
+    min_control_gain: float = 0.05
+    min_fold_wins: float = 0.8
+    max_effects: int = 6
+    decimate: int = 5
+    smooth_counts: tuple[int, ...] = (6, 12)
+    modulated_counts: tuple[int, ...] = (4, 6, 8)
+    harmonics: int = 2
+    friction: FrictionKind = FrictionKind.WN
+    ridge: float = 1e-4
+    #: Fit a constant torque per joint; None: only without rigid-body terms.
+    offsets: bool | None = None
+    #: Candidates, best first, checked against the whole model per step
+    #: (:class:`~teleop_force.residual.scoring.WholeModelCheck`).
+    confirm_candidates: int = 20
+    #: Also cut periodic recordings into held-out blocks by phase
+    #: (:func:`~teleop_force.residual.scoring.trajectory_period`) and refuse an effect that
+    #: raises a joint's error on them.
+    phase_folds: bool = True
+    #: Where an effect found on motor j acts (:class:`EffectPlacement`).
+    effect_placement: EffectPlacement = EffectPlacement.AUTO
+
+    def __post_init__(self) -> None:
+        if self.folds < 3:
+            raise ConfigurationError("folds must be >= 3")
+        if not 0 < self.min_rms_gain < 1:
+            raise ConfigurationError("min_rms_gain must be in (0, 1)")
+        if not 0 <= self.min_control_gain < 1:
+            raise ConfigurationError("min_control_gain must be in [0, 1)")
+        for name, kind, what in (
+            ("friction", FrictionKind, "residual friction"),
+            ("effect_placement", EffectPlacement, "effect placement"),
+        ):
+            value = getattr(self, name)
+            try:
+                object.__setattr__(self, name, kind(value))
+            except ValueError:
+                choices = ", ".join(choice.value for choice in kind)
+                raise ConfigurationError(
+                    f"{what} must be one of {choices}, got {value!r}"
+                ) from None
+        if self.decimate < 1:
+            raise ConfigurationError("decimate must be >= 1")
+        if self.confirm_candidates < 1:
+            raise ConfigurationError("confirm_candidates must be >= 1")
+
+    @property
+    def placement(self) -> EffectPlacement:
+        """The effect placement with ``auto`` resolved for this friction."""
+        return self.effect_placement.resolved(self.friction)
