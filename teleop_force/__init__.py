@@ -78,7 +78,6 @@ if TYPE_CHECKING:
         least_squares,
         relative_rms,
     )
-    from teleop_force.lowpass import LowPass
     from teleop_force.identification.pipeline import evaluate_model, identify_model
     from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
     from teleop_force.io.interchange_csv import (
@@ -88,6 +87,7 @@ if TYPE_CHECKING:
     )
     from teleop_force.io.mcap_session import SessionReader, SessionWriter
     from teleop_force.io.recordings import read_recording
+    from teleop_force.lowpass import LowPass
     from teleop_force.residual.loop import trace_residual
     from teleop_force.residual.report import ResidualReport
     from teleop_force.robots.description import Robot, RobotDescription

@@ -39,7 +39,6 @@ from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.lowpass import filtered_derivative_batch, lowpass_batch
 from teleop_force.identification.pipeline import prepare
 from teleop_force.identification.regressor import (
     BaseParameters,
@@ -47,6 +46,7 @@ from teleop_force.identification.regressor import (
     full_parameters,
 )
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.lowpass import filtered_derivative_batch, lowpass_batch
 from teleop_force.robots.description import Robot, RobotDescription
 
 _DIRECTIONAL_STEP = 1e-5

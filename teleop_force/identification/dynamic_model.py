@@ -15,8 +15,8 @@ import numpy as np
 from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.friction.base import FrictionModel
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.regressor import BaseParameters
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.description import RobotDescription
 from teleop_force.robots.registry import resolve_robot
 from teleop_force.schema import read_entry

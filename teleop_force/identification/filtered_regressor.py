@@ -28,13 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.lowpass import (
     DEFAULT_CUTOFF_HZ,
     filtered_derivative_batch,
     lowpass_batch,
     sample_intervals,
 )
-from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 
 
 @dataclass(frozen=True)

@@ -27,11 +27,11 @@ from teleop_force.identification.filtered_regressor import (
     FilteredSignals,
 )
 from teleop_force.identification.least_squares import Identification, least_squares, relative_rms
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.prepared import PreparedRecording, WaveletOptions, prepare
 from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.identification.rigid_body_fit import RigidBodyFitOptions, fit_rigid_body
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.description import RobotDescription
 
 

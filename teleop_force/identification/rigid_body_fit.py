@@ -42,9 +42,9 @@ from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
 from teleop_force.identification.least_squares import Identification, least_squares
-from teleop_force.lowpass import lowpass_batch, sample_intervals
 from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.lowpass import lowpass_batch, sample_intervals
 from teleop_force.robots.description import RobotDescription
 
 _SIGN_SMOOTHING_RAD_S = 1e-3

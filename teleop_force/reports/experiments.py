@@ -124,7 +124,7 @@ class _BaseParameterRow:
         return self.torque_share >= WELL_EXCITED_SHARE
 
     def to_json(self) -> dict[str, Any]:
-        """The row as in ``report.json``."""
+        """Return the row as in ``report.json``."""
         return {
             "name": self.name,
             "value": self.value,
@@ -159,7 +159,7 @@ class _FrictionSession:
     wn: _Fit
 
     def fit(self, kind: FrictionKind) -> _Fit:
-        """The model of friction ``kind`` (cv, coupled-cv or wn)."""
+        """Return the model of friction ``kind`` (cv, coupled-cv or wn)."""
         match kind:
             case FrictionKind.CV:
                 return self.cv
@@ -187,7 +187,7 @@ class _FrictionExperiments:
     independent: _FrictionSession
 
     def by_mode(self) -> tuple[tuple[str, _FrictionSession], ...]:
-        """The sessions with their protocol mode, in the order they were simulated."""
+        """Return the sessions with their protocol mode, in the order they were simulated."""
         return (
             ("equal", self.equal),
             ("opposite", self.opposite),
@@ -247,7 +247,7 @@ class _MethodRun:
     details: dict[str, Any]
 
     def to_json(self) -> dict[str, Any]:
-        """The run as in ``report.json``."""
+        """Return the run as in ``report.json``."""
         return {
             "train": self.train_pct,
             "test": self.test_pct,
@@ -572,10 +572,10 @@ def _table_six_section(test: _TeleoperationTest, rigid: _RigidBodyExperiment) ->
         + ", ".join(f"joint {j + 1} {100 * c:.1f} %" for j, c in enumerate(test.coverage)),
         "",
     ]
+    training_rms = _pct(rigid.fit.report.friction_relative_rms)
     md += [
         "Reverse torque computation of the Table I model (rigid body + coupled CV, fitted on the",
-        f"rigid-body session): relative RMS per joint {_pct(rigid.fit.report.friction_relative_rms)} %"
-        " on its training session,",
+        f"rigid-body session): relative RMS per joint {training_rms} % on its training session,",
         f"{_pct(test.rigid_body_rms)} % on this independent teleoperation session.",
         "",
     ]

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from teleop_force.identification.effects import BasisSpec
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.rigid_body_fit import RigidBodyFitOptions, nuisance_friction_basis
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.residual.options import ResidualOptions
 from teleop_force.residual.samples import SelectedSamples, filtered_columns
 from teleop_force.residual.scoring import JointDesign, held_out_gain

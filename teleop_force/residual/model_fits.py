@@ -21,11 +21,11 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.least_squares import Identification, least_squares
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.pipeline import _friction_regressor, stage_one_friction
 from teleop_force.identification.prepared import PreparedRecording, WaveletOptions, prepare
 from teleop_force.identification.regressor import BaseParameters
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.residual.placement import placed_columns
 from teleop_force.residual.report import TracedEffect
 from teleop_force.robots.description import RobotDescription

@@ -15,8 +15,8 @@ import numpy as np
 from teleop_force.errors import DataError
 from teleop_force.friction.base import FrictionModel
 from teleop_force.identification.effects import BasisSpec
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.pipeline import PreparedRecording, _friction_regressor
+from teleop_force.lowpass import lowpass_batch
 from teleop_force.residual.options import ResidualOptions
 from teleop_force.residual.scoring import (
     WholeModelCheck,

@@ -228,7 +228,9 @@ def test_batch_fit_runs_blas_on_one_thread_and_restores_the_count(monkeypatch):
         fit_batch(fixed_network(seed=11, per_joint=8), t, qd, target_l, wavelets="active")
         assert _blas_threads() == before
     assert len(seen) == 2  # the two pool geometries, each in its own worker thread
-    assert all(name.startswith("fit_batch") and counts == [1] * len(before) for name, counts in seen)
+    assert all(
+        name.startswith("fit_batch") and counts == [1] * len(before) for name, counts in seen
+    )
 
 
 def test_batch_fit_over_visited_pool_explains_the_target():

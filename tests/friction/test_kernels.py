@@ -18,8 +18,8 @@ from teleop_force.friction.adaptation import (
 )
 from teleop_force.friction.kernels import FilteredWavelets
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
-from teleop_force.lowpass import lowpass_batch
 from teleop_force.identification.wavelet_training import batch_row_stride
+from teleop_force.lowpass import lowpass_batch
 
 CUTOFF_HZ = 8.0
 
