@@ -43,7 +43,7 @@ _LOCATIONS = {
     "TransportError": "teleop_force.errors",
     "WaveletNetwork": "teleop_force.friction.wavelet_network",
     "evaluate_model": "teleop_force.identification.pipeline",
-    "fit_batch": "teleop_force.friction.adaptation",
+    "fit_batch": "teleop_force.friction.batch_fit",
     "identify_model": "teleop_force.identification.pipeline",
     "least_squares": "teleop_force.identification.least_squares",
     "omni_description": "teleop_force.robots.omni",
@@ -68,7 +68,8 @@ if TYPE_CHECKING:
     )
     from teleop_force.estimation.estimator import ForceEstimate, ForceEstimator
     from teleop_force.friction import CoulombViscous, CoupledCoulombViscous, FrictionModel
-    from teleop_force.friction.adaptation import LyapunovAdapter, fit_batch
+    from teleop_force.friction.adaptation import LyapunovAdapter
+    from teleop_force.friction.batch_fit import fit_batch
     from teleop_force.friction.coverage import CoverageMap
     from teleop_force.friction.wavelet_network import WaveletNetwork
     from teleop_force.identification.dynamic_model import DynamicModel

@@ -22,8 +22,8 @@ import numpy as np
 #: The Omni's coupled networks read (qd2, qd3); joint 1's reads qd1 (0-based indices).
 PLANE_INPUTS: Final = (1, 2)
 LINE_INPUTS: Final = (0,)
-#: Trust ramp defaults of :class:`teleop_force.friction.coverage.CoverageConfig`.
-_DEFAULT_CONFIG: Final = {"smoothing_cells": 1.0, "untrained_density": 1.0, "trained_density": 20.0}
+#: Narrowest trust ramp [samples per cell] (model files cannot hold a narrower one).
+_MIN_RAMP: Final = 1e-12
 
 
 @dataclass(frozen=True)
@@ -68,19 +68,19 @@ def unwrap_model(reply: Any) -> Mapping[str, Any] | None:
     return None
 
 
-def _smoothstep(s: np.ndarray) -> np.ndarray:
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
-
-
 def _trust_from_counts(counts: np.ndarray, config: Mapping[str, Any]) -> np.ndarray:
-    from scipy.ndimage import gaussian_filter
+    """Trust per cell as :class:`~teleop_force.friction.coverage.CoverageMap` computes it.
 
-    sigma = float(config.get("smoothing_cells", _DEFAULT_CONFIG["smoothing_cells"]))
-    lo = float(config.get("untrained_density", _DEFAULT_CONFIG["untrained_density"]))
-    hi = float(config.get("trained_density", _DEFAULT_CONFIG["trained_density"]))
-    density = gaussian_filter(counts, sigma, mode="constant") if sigma > 0 else counts
-    return _smoothstep((density - lo) / max(hi - lo, 1e-12))
+    Missing settings take :class:`~teleop_force.friction.coverage.CoverageConfig`'s defaults.
+    """
+    # imported here: numba and scipy would add a second to the dashboard's start
+    from teleop_force.friction.coverage import CoverageConfig, density_trust, smoothed_density
+
+    defaults = CoverageConfig()
+    sigma = float(config.get("smoothing_cells", defaults.smoothing_cells))
+    lo = float(config.get("untrained_density", defaults.untrained_density))
+    hi = float(config.get("trained_density", defaults.trained_density))
+    return density_trust(smoothed_density(counts, sigma), lo, max(hi, lo + _MIN_RAMP))
 
 
 def _grid_counts(grid: Mapping[str, Any], d: int) -> np.ndarray:

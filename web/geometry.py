@@ -1,6 +1,6 @@
 """Omni geometry for drawing: joint positions, the base-to-viser frame map, link poses.
 
-Frames (../shared/omni/CONVENTIONS.md): the Omni *base* frame has y up, z toward the user and
+Frames (docs/conventions.md): the Omni *base* frame has y up, z toward the user and
 x = y cross z. viser's world is z up. The dashboard draws in world coordinates
 
     world = R_WORLD_BASE @ base,   R_WORLD_BASE = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]

@@ -11,7 +11,7 @@ Over the same recordings (two, ``samples`` in all at 1 kHz), three things are ti
 * the friction-fit stage alone on those precomputed filtered signals,
   :func:`~teleop_force.identification.wavelet_training.train_wavelet_network`: once with the batch
   ridge fit
-  (:func:`~teleop_force.friction.adaptation.fit_batch`) and once with one pass of the
+  (:func:`~teleop_force.friction.batch_fit.fit_batch`) and once with one pass of the
   Lyapunov adaptation (:meth:`~teleop_force.friction.adaptation.LyapunovAdapter.run`).
 
 Each figure is ``recorded seconds / wall seconds``; CPU seconds are reported alongside.

@@ -1,4 +1,4 @@
-"""The ``teleop-force`` command line (see ../shared/CONTRACT.md).
+"""The ``teleop-force`` command line (see docs/cli.md).
 
 Exit status 0 on success, 2 for bad usage or unreadable input with one line on stderr naming
 the file, row or field. ``--json`` output is a single JSON object on stdout; logs go to stderr.
@@ -12,7 +12,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from teleop_force.transport.session import add_zenoh_arguments
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
+
+#: What ``add_subparsers`` returns; each ``_add_<command>`` adds one subcommand to it.
+_Subparsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 
 
 def _log(message: str) -> None:
@@ -300,15 +303,45 @@ def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser of ``teleop-force``."""
-    # The enums only (light modules): the commands import what they run when they run.
+    """Build the argument parser of ``teleop-force``: one subcommand per helper below."""
+    parser = argparse.ArgumentParser(prog="teleop-force", description=__doc__.splitlines()[0])
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    _add_identify(subparsers)
+    _add_evaluate(subparsers)
+    _add_estimate(subparsers)
+    _add_residual(subparsers)
+    _add_report_robots(subparsers)
+    _add_demo(subparsers)
+    _add_replay(subparsers)
+    _add_bench(subparsers)
+    _add_experiments(subparsers)
+    _add_residual_blind(subparsers)
+    return parser
+
+
+# The subcommands import only light modules (enums, option lists) to build their flags: each
+# command imports what it runs when it runs.
+
+
+def _add_json_flag(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
+    parser.add_argument("--json", action="store_true", help=help_text)
+
+
+def _add_output(
+    parser: argparse.ArgumentParser,
+    help_text: str | None = None,
+    *,
+    required: bool = False,
+    default: str | None = None,
+) -> None:
+    parser.add_argument("-o", "--output", required=required, default=default, help=help_text)
+
+
+def _add_identify(subparsers: _Subparsers) -> None:
     from teleop_force.friction.kinds import FrictionKind
     from teleop_force.robots.kinds import RobotKind
 
-    parser = argparse.ArgumentParser(prog="teleop-force", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    p = sub.add_parser("identify", help="identify rigid-body parameters and friction")
+    p = subparsers.add_parser("identify", help="identify rigid-body parameters and friction")
     p.add_argument("data", nargs="+", help="recordings (.csv interchange or .mcap session)")
     p.add_argument(
         "--robot",
@@ -329,26 +362,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="train the wavelet network by batch ridge least squares (default, as the"
         " library) or by the paper's Lyapunov adaptation",
     )
-    p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
+    _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
-    p = sub.add_parser("evaluate", help="reverse torque computation, relative RMS per joint")
+
+def _add_evaluate(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser("evaluate", help="reverse torque computation, relative RMS per joint")
     p.add_argument("model")
     p.add_argument("data", nargs="+")
-    p.add_argument("--json", action="store_true")
+    _add_json_flag(p)
     p.set_defaults(run=_cmd_evaluate)
 
-    p = sub.add_parser("estimate", help="contact-force estimate for every sample")
+
+def _add_estimate(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser("estimate", help="contact-force estimate for every sample")
     p.add_argument("model")
     p.add_argument("data")
-    p.add_argument("-o", "--output", required=True)
+    _add_output(p, required=True)
     p.set_defaults(run=_cmd_estimate)
 
+
+def _add_residual(subparsers: _Subparsers) -> None:
     # The light options module only (the enums): the loop itself is imported when it runs.
     from teleop_force.friction.kinds import FrictionKind
     from teleop_force.residual.options import COMMAND_LINE_FRICTION_KINDS, EffectPlacement
 
-    p = sub.add_parser(
+    p = subparsers.add_parser(
         "residual", help="find, trace and add what the model lacks; report before/after"
     )
     p.add_argument("data", nargs="+")
@@ -371,17 +410,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="where a found effect acts: on its motor joint, at the model joint (through the"
         " coupling), either (model joint if confirmed); auto: either with model-cv friction",
     )
-    p.add_argument("--json", action="store_true")
-    p.add_argument("-o", "--output", help="folder for the report (markdown, plots, model.json)")
+    _add_json_flag(p)
+    _add_output(p, "folder for the report (markdown, plots, model.json)")
     p.set_defaults(run=_cmd_residual)
 
-    p = sub.add_parser("report-robots", help="tables and plots of the real-robot datasets")
-    p.add_argument("-o", "--output", default="reports/robots", help="folder for the report")
+
+def _add_report_robots(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser("report-robots", help="tables and plots of the real-robot datasets")
+    _add_output(p, "folder for the report", default="reports/robots")
     p.add_argument("--datasets", help="datasets folder (default: <repo>/../shared/datasets)")
     p.add_argument("--skip-residual", action="store_true", help="skip the slow MTM residual loop")
     p.set_defaults(run=_cmd_report_robots)
 
-    p = sub.add_parser("demo", help="master, slave, service and dashboard over Zenoh on loopback")
+
+def _add_demo(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo", help="master, slave, service and dashboard over Zenoh on loopback"
+    )
     p.add_argument(
         "--duration",
         type=float,
@@ -423,7 +468,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(run=_cmd_demo)
 
-    p = sub.add_parser("replay", help="publish a recorded session over Zenoh as if live")
+
+def _add_replay(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser("replay", help="publish a recorded session over Zenoh as if live")
     p.add_argument("recording", help="session .mcap")
     p.add_argument(
         "--speed",
@@ -458,37 +505,42 @@ def build_parser() -> argparse.ArgumentParser:
         help="wait up to S s for a subscriber of the joint states before starting",
     )
     p.add_argument("--no-wait", action="store_true", help="start at once")
-    p.add_argument("--json", action="store_true", help="print what was published as JSON")
+    _add_json_flag(p, "print what was published as JSON")
     add_zenoh_arguments(p)
     p.set_defaults(run=_cmd_replay)
 
-    p = sub.add_parser("bench", help="performance figures of this machine, measured in one run")
+
+def _add_bench(subparsers: _Subparsers) -> None:
     from teleop_force.bench.main import add_bench_arguments
 
+    p = subparsers.add_parser(
+        "bench", help="performance figures of this machine, measured in one run"
+    )
     add_bench_arguments(p)
     p.set_defaults(run=_cmd_bench)
 
-    p = sub.add_parser(
+
+def _add_experiments(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
         "experiments", help="reproduce the paper's experiments on the simulated Omni"
     )
-    p.add_argument(
-        "-o", "--output", required=True, help="folder for report.md, report.json and figures"
-    )
+    _add_output(p, "folder for report.md, report.json and figures", required=True)
     p.add_argument(
         "--duration", type=float, default=240.0, help="training session length [s] (paper: 240)"
     )
     p.add_argument("--test-duration", type=float, default=60.0, help="test session length [s]")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--json", action="store_true")
+    _add_json_flag(p)
     p.set_defaults(run=_cmd_experiments)
 
-    p = sub.add_parser(
+
+def _add_residual_blind(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
         "residual-blind", help="blind tests of the residual loop on simulated effects"
     )
-    p.add_argument("-o", "--output", required=True, help="folder for blind.md and blind.json")
+    _add_output(p, "folder for blind.md and blind.json", required=True)
     p.add_argument("--duration", type=float, default=60.0, help="session length [s]")
     p.set_defaults(run=_cmd_residual_blind)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-r"""Lyapunov adaptation of a :class:`WaveletNetwork` (paper Section III-C/D), and a batch fit.
+r"""Lyapunov adaptation of a :class:`WaveletNetwork` (paper Section III-C/D).
 
 Identifier (derivation)
 -----------------------
@@ -67,33 +67,23 @@ Structure (Section III-D), checked every ``structure_interval`` samples, vectori
   does not say) so a network can never empty itself. Removals and the thresholds are applied
   per network with vector operations; a structure change re-gathers the flat working arrays.
 
-Batch alternative: :func:`fit_batch` solves ridge-regularised least squares of the same
-filtered basis against a filtered friction-torque target, normal equations built in chunks
-from every ``row_stride``-th filtered row (the basis is evaluated and filtered on every sample
-by the compiled :class:`teleop_force.friction.kernels.FilteredWavelets`), one thread per group
-of joints sharing a pool geometry, BLAS on one thread (threadpoolctl).
+Batch alternative: :func:`teleop_force.friction.batch_fit.fit_batch` solves ridge-regularised
+least squares of the same filtered basis against a filtered friction-torque target.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
-from scipy.fft import irfftn, next_fast_len, rfftn
-from scipy.linalg import cho_factor, cho_solve
-from scipy.ndimage import uniform_filter
-from threadpoolctl import threadpool_limits
 
-from teleop_force.errors import ConfigurationError, DataError, ModelError
-from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
-from teleop_force.friction.wavelet_network import WaveletNetwork, mexican_hat
-from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, sample_intervals
+from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.friction.terms import pool_wavelets
+from teleop_force.friction.wavelet_network import WaveletNetwork
+from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, sample_intervals
 
 #: An excluded wavelet's coefficient decays as ``exp(-t / tau)`` with
 #: ``tau = removal_time_s / REMOVAL_TIME_CONSTANTS``; after ``removal_time_s`` (e^-5, < 1 %
@@ -197,8 +187,8 @@ class AdaptationResult:
         return self.samples / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
 
-def _regularised_intervals(t_s: np.ndarray) -> np.ndarray:
-    """``sample_intervals``, with jitter below 1e-9 relative snapped to the median.
+def regularised_intervals(t_s: np.ndarray) -> np.ndarray:
+    """Return ``sample_intervals``, with jitter below 1e-9 relative snapped to the median.
 
     Time stamps like ``arange(N) / 1000`` differ from a uniform grid by rounding only; using
     one exact interval makes the per-block filter constants identical (and cacheable) and
@@ -315,19 +305,8 @@ class LyapunovAdapter:
             return
         pool = self.network.pool
         idx = self._idx
-        # -|x a0^-m - n b0|^2 / 2 = [qd^2, qd, 1] @ quad: one matmul for all wavelets
-        n_ext = self._n + 1
-        quad = np.zeros((2 * n_ext + 1, idx.size))
-        cols = np.arange(idx.size)
-        inv = pool.inv_scale[idx]
-        for i in range(pool.dmax):
-            rows = pool.input_index[idx, i]
-            cs = pool.centre_scaled[idx, i]
-            np.add.at(quad, (rows, cols), -0.5 * inv * inv)
-            np.add.at(quad, (n_ext + rows, cols), inv * cs)
-            quad[2 * n_ext] -= 0.5 * cs * cs
-        self._quad = quad
-        self._amp2 = 2.0 * self._amp
+        self._input_index = np.ascontiguousarray(pool.input_index[idx])
+        self._centre_scaled = np.ascontiguousarray(pool.centre_scaled[idx])
         self._rows = np.arange(idx.size)
         self._onehot = np.zeros((idx.size, self._n))
         self._onehot[np.arange(idx.size), self._joint] = 1.0
@@ -355,19 +334,17 @@ class LyapunovAdapter:
             self._c = self.network.coefficients_at(self._idx)
 
     def _raw(self, qd: np.ndarray) -> np.ndarray:
-        """Raw wavelet values of the active set for samples ``qd`` (K, n) -> (K, P)."""
-        n = self._n
-        features = np.zeros((qd.shape[0], 2 * n + 3))
-        features[:, :n] = qd * qd
-        features[:, n + 1 : 2 * n + 1] = qd
-        features[:, 2 * n + 2] = 1.0
-        h = features @ self._quad  # -r^2 / 2
-        np.minimum(h, 0.0, out=h)  # rounding near the centre
-        out = np.exp(h)
-        h *= self._amp2
-        h += self._amp
-        out *= h  # amp (1 - r^2) exp(-r^2 / 2)
-        return out
+        """Raw wavelet values of the active set for samples ``qd`` (K, n) -> (K, P).
+
+        The one definition of the wavelet, :func:`~teleop_force.friction.terms.pool_wavelets`.
+        """
+        return pool_wavelets(
+            np.ascontiguousarray(qd, dtype=float),
+            self._input_index,
+            self._centre_scaled,
+            self._inv,
+            self._amp,
+        )
 
     # -- the recursion, one sample (step; run uses the compiled kernels.adapt_samples) --------
 
@@ -516,7 +493,7 @@ class LyapunovAdapter:
     ) -> AdaptationResult:
         """Adapt over a whole recording (N samples); ``reset`` first forgets signal states."""
         t_arr = np.asarray(t_s, dtype=float).reshape(-1)
-        dt = _regularised_intervals(t_arr)
+        dt = regularised_intervals(t_arr)
         n_samples = t_arr.size
         arrays = []
         for name, value in (("qd", qd), ("p_L", p_L), ("u_L", u_L)):
@@ -586,425 +563,3 @@ class LyapunovAdapter:
             included=self.included - included0,
             excluded=self.excluded - excluded0,
         )
-
-
-# -- batch alternative ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class BatchFitResult:
-    """Summary of :func:`fit_batch`.
-
-    Attributes:
-        samples: Samples used (before ``row_stride``).
-        candidates: Wavelets per joint that entered the least squares.
-        sizes: Active wavelets per joint after pruning.
-        rms_nm: RMS of the filtered-torque residual per joint [N m].
-        relative_rms: ``rms_nm / RMS(target_L)`` per joint.
-        wall_time_s: Processing time.
-
-    """
-
-    samples: int
-    candidates: tuple[int, ...]
-    sizes: tuple[int, ...]
-    rms_nm: np.ndarray
-    relative_rms: np.ndarray
-    wall_time_s: float
-
-    def __post_init__(self) -> None:
-        if len(self.candidates) != len(self.sizes):
-            raise ConfigurationError("BatchFitResult: per-joint fields differ in length")
-
-
-def filtered_basis_normal_equations(
-    network: WaveletNetwork,
-    joint: int,
-    indices: np.ndarray,
-    t_s: np.ndarray,
-    qd: np.ndarray,
-    targets: np.ndarray,
-    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
-    row_stride: int = 1,
-    chunk_samples: int = 16384,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """``(G, b, yy, rows)`` of the low-pass filtered wavelets ``indices`` against ``targets``.
-
-    ``G = Psi_L^T Psi_L``, ``b = Psi_L^T Y``, ``yy = sum Y^2`` per column of ``targets`` (N, r),
-    over every ``row_stride``-th sample (samples 0, ``row_stride``, ...). ``Psi_L`` equals
-    ``lowpass_batch(basis, t_s)``: the wavelets are evaluated and filtered on *every* sample
-    by the compiled :class:`~teleop_force.friction.kernels.FilteredWavelets` (to ~1e-15
-    relative, see there), ``chunk_samples`` samples at a time with the filter state carried
-    over; only the kept rows enter the products.
-    """
-    from teleop_force.friction.kernels import FilteredWavelets  # numba: imported when used
-
-    dt = _regularised_intervals(t_s)
-    a = np.exp(-2.0 * math.pi * cutoff_hz * dt)
-    a[0] = 0.0  # the filter starts at the first value, as lowpass_batch
-    indices = np.asarray(indices, dtype=np.int64)
-    pool = network.pool
-    spec = network.specs[joint]
-    x = np.ascontiguousarray(np.asarray(qd, dtype=float)[:, list(spec.inputs)])
-    wavelets = FilteredWavelets(
-        pool.centre_scaled[indices, : spec.d], pool.inv_scale[indices], pool.amplitude[indices]
-    )
-    p = indices.size
-    gram = np.zeros((p, p))
-    rhs = np.zeros((p, targets.shape[1]))
-    yy = np.zeros(targets.shape[1])
-    keep_all = np.arange(0, x.shape[0], row_stride, dtype=np.int64)
-    buffer = np.empty((min(keep_all.size, -(-chunk_samples // row_stride)), p))
-    rows = 0
-    for start in range(0, x.shape[0], chunk_samples):
-        stop = min(start + chunk_samples, x.shape[0])
-        keep = keep_all[np.searchsorted(keep_all, start) : np.searchsorted(keep_all, stop)]
-        sel = wavelets.rows(x[start:stop], a[start:stop], keep - start, buffer)
-        tgt = targets[keep]
-        gram += sel.T @ sel
-        rhs += sel.T @ tgt
-        yy += np.sum(tgt * tgt, axis=0)
-        rows += sel.shape[0]
-    # the kernel's columns are sorted (wavelets.order): back to the order of ``indices``
-    back = np.argsort(wavelets.order)
-    return gram[np.ix_(back, back)], rhs[back], yy, rows
-
-
-def wavelet_visits(network: WaveletNetwork, joint: int, qd: np.ndarray) -> np.ndarray:
-    """Count, per pool wavelet of ``joint``, the samples near its centre -> (K_j,).
-
-    A sample counts for a wavelet when its nearest centre on that wavelet's dilation grid is
-    the wavelet itself or one of its same-dilation neighbours (within 1.5 grid steps per axis).
-    """
-    pool = network.pool
-    spec = network.specs[joint]
-    x = np.asarray(qd, dtype=float)[:, list(spec.inputs)]
-    sl = pool.joint_slice(joint)
-    visits = np.zeros(pool.joint_size(joint))
-    for m in range(spec.m_max, spec.m_min - 1, -1):
-        members = np.flatnonzero(pool.m[sl] == m)
-        n_lo = pool.n[sl][members].min(axis=0)[: spec.d]
-        shape = tuple(int(v) for v in pool.n[sl][members].max(axis=0)[: spec.d] - n_lo + 1)
-        cell = np.rint(x / (pool.a0**m * pool.b0)).astype(np.int64) - n_lo
-        inside = np.all((cell >= 0) & (cell < np.asarray(shape)), axis=1)
-        counts = (
-            np.bincount(
-                np.ravel_multi_index(tuple(cell[inside].T), shape), minlength=int(np.prod(shape))
-            )
-            .reshape(shape)
-            .astype(float)
-        )
-        boxed = uniform_filter(counts, size=3, mode="constant") * 3**spec.d
-        visits[members] = boxed.reshape(-1)
-    return np.rint(visits)
-
-
-def wavelet_scores(
-    network: WaveletNetwork, joint: int, qd: np.ndarray, target: np.ndarray
-) -> np.ndarray:
-    """How much each pool wavelet of ``joint`` would explain of ``target`` (K_j,), >= 0.
-
-    The samples are binned on the finest dilation's grid (cell means ``f``, counts ``w``);
-    for every wavelet ``k`` the score is ``(sum w psi_k (f - f_loc))^2 / sum w psi_k^2`` with
-    ``f_loc`` the Gaussian-weighted local mean under ``k``'s envelope: the discrete wavelet
-    transform ``<f, psi_k>`` of the paper, made insensitive to the local level (the Mexican hat
-    has zero mean only over a fully visited support), i.e. the squared-error reduction of
-    fitting ``k`` alone to the locally de-meaned target. Computed with FFT convolutions.
-    """
-    y = np.asarray(target, dtype=float).reshape(-1, 1)
-    return wavelet_scores_of_targets(network, joint, qd, y)[0]
-
-
-class _SameConvolution:
-    """``scipy.signal.fftconvolve(a, kernel, mode="same")`` for one pair of shapes, reusable.
-
-    The same steps as SciPy's (``rfftn`` at the next fast length of the full size, product,
-    ``irfftn``, centred slice), so the values are the same bit for bit; a transform computed
-    once serves every convolution that uses that array.
-    """
-
-    def __init__(self, shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> None:
-        self.shape = shape
-        self.full = [a + b - 1 for a, b in zip(shape, kernel_shape, strict=True)]
-        self.fshape = [next_fast_len(n, True) for n in self.full]
-        self.axes = list(range(len(shape)))
-
-    def transform(self, a: np.ndarray) -> np.ndarray:
-        return rfftn(a, self.fshape, axes=self.axes)
-
-    def convolve(self, spectrum: np.ndarray, kernel_spectrum: np.ndarray) -> np.ndarray:
-        full = irfftn(spectrum * kernel_spectrum, self.fshape, axes=self.axes)
-        full = full[tuple(slice(n) for n in self.full)]
-        start = [(f - s) // 2 for f, s in zip(full.shape, self.shape, strict=True)]
-        centred = tuple(slice(a, a + s) for a, s in zip(start, self.shape, strict=True))
-        return full[centred].copy()
-
-
-def wavelet_scores_of_targets(
-    network: WaveletNetwork, joint: int, qd: np.ndarray, targets: np.ndarray
-) -> np.ndarray:
-    """:func:`wavelet_scores` of every column of ``targets`` (N, r) -> (r, K_j).
-
-    The sample counts and their convolutions are computed once for all targets (the Omni's
-    joints 2 and 3 read the same velocities); the values equal ``wavelet_scores`` per column.
-    """
-    targets = np.asarray(targets, dtype=float).reshape(np.shape(qd)[0], -1)
-    finite = np.isfinite(targets)
-    if not np.all(finite) and targets.shape[1] > 1:
-        # the counts depend on which samples are finite: one target at a time
-        return np.concatenate(
-            [wavelet_scores_of_targets(network, joint, qd, targets[:, [c]]) for c in
-             range(targets.shape[1])]
-        )  # fmt: skip
-    pool = network.pool
-    spec = network.specs[joint]
-    sl = pool.joint_slice(joint)
-    x = np.asarray(qd, dtype=float)[:, list(spec.inputs)]
-    h = pool.a0**spec.m_min * pool.b0
-    pad = math.ceil(pool.a0**spec.m_max * pool.b0 / h) + 1
-    lo = np.rint(np.asarray(spec.x_min_rad_s) / h).astype(np.int64) - pad
-    hi = np.rint(np.asarray(spec.x_max_rad_s) / h).astype(np.int64) + pad
-    shape = tuple(int(v) for v in hi - lo + 1)
-    cell = np.rint(x / h).astype(np.int64) - lo
-    inside = np.all((cell >= 0) & (cell < np.asarray(shape)), axis=1) & np.all(finite, axis=1)
-    flat = np.ravel_multi_index(tuple(cell[inside].T), shape)
-    size = int(np.prod(shape))
-    w = np.bincount(flat, minlength=size).reshape(shape).astype(float)
-    wfs = [
-        np.bincount(flat, weights=targets[inside, c], minlength=size).reshape(shape)
-        for c in range(targets.shape[1])
-    ]
-    scores = np.zeros((targets.shape[1], pool.joint_size(joint)))
-    for m in range(spec.m_max, spec.m_min - 1, -1):
-        scale = pool.a0**m
-        radius = math.ceil(4.0 * scale / h)
-        offsets = np.indices((2 * radius + 1,) * spec.d).reshape(spec.d, -1).T - radius
-        r = offsets * h / scale
-        kernel_shape = (2 * radius + 1,) * spec.d
-        psi = (pool.a0 ** (-spec.d * m / 2.0) * mexican_hat(r)).reshape(kernel_shape)
-        gauss = np.exp(-0.5 * np.sum(r * r, axis=1)).reshape(kernel_shape)
-        conv = _SameConvolution(shape, kernel_shape)
-        psi_s, gauss_s, psi2_s = (conv.transform(k) for k in (psi, gauss, psi * psi))
-        w_s = conv.transform(w)
-        conv_b = conv.convolve(w_s, psi_s)
-        conv_gn = conv.convolve(w_s, gauss_s)
-        conv_q = conv.convolve(w_s, psi2_s)
-        members = np.flatnonzero(pool.m[sl] == m)
-        centres = pool.centre[sl][members, : spec.d]
-        c_cell = np.rint(centres / h).astype(np.int64) - lo
-        ok = np.all((c_cell >= 0) & (c_cell < np.asarray(shape)), axis=1)
-        for c, wf in enumerate(wfs):
-            wf_s = conv.transform(wf)
-            conv_a = conv.convolve(wf_s, psi_s)
-            conv_gf = conv.convolve(wf_s, gauss_s)
-            local = np.divide(conv_gf, conv_gn, out=np.zeros(shape), where=conv_gn > 1e-9)
-            detail = conv_a - conv_b * local
-            score = np.divide(detail**2, conv_q, out=np.zeros(shape), where=conv_q > 1e-12)
-            vals = np.zeros(members.size)
-            vals[ok] = score[tuple(c_cell[ok].T)]
-            scores[c, members] = np.maximum(vals, 0.0)
-    return scores
-
-
-def _solve_ridge(gram: np.ndarray, rhs: np.ndarray, ridge: float) -> np.ndarray:
-    scale = float(np.mean(np.diag(gram))) if gram.size else 0.0
-    reg = gram + (ridge * max(scale, 1e-300)) * np.eye(gram.shape[0])
-    try:
-        return cho_solve(cho_factor(reg), rhs)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(reg, rhs, rcond=None)[0]
-
-
-def _ridge_with_pruning(
-    gram: np.ndarray, rhs: np.ndarray, amplitude: np.ndarray, ridge: float, prune_tol_nm: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Solve, drop wavelets with peak contribution < ``prune_tol_nm``, refit (<= 5 rounds)."""
-    keep = np.arange(rhs.size)
-    coef = np.zeros(0)
-    for _ in range(5):
-        if keep.size == 0:
-            return keep, np.zeros(0)
-        coef = _solve_ridge(gram[np.ix_(keep, keep)], rhs[keep], ridge)
-        small = np.abs(coef) * amplitude[keep] < prune_tol_nm
-        if not np.any(small):
-            return keep, coef
-        keep = keep[~small]
-    if keep.size == 0:
-        return keep, np.zeros(0)
-    return keep, _solve_ridge(gram[np.ix_(keep, keep)], rhs[keep], ridge)
-
-
-def fit_coupled_cv(
-    t_s: np.ndarray,
-    qd: np.ndarray,
-    target_L: np.ndarray,
-    friction_inputs: Sequence[Sequence[int]],
-    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
-) -> CoupledCoulombViscous:
-    """Least-squares coupled Coulomb+viscous model of the filtered friction target (N x n)."""
-    qd = np.asarray(qd, dtype=float)
-    target_L = np.asarray(target_L, dtype=float)
-    n = qd.shape[1]
-    model = CoupledCoulombViscous(n, tuple(tuple(s) for s in friction_inputs))
-    for j in range(n):
-        basis_l = lowpass_batch(model.basis(j, qd), t_s, cutoff_hz)
-        solution = np.linalg.lstsq(basis_l, target_L[:, j], rcond=None)[0]
-        model.set_joint_parameters(j, solution)
-    return model
-
-
-def fit_batch(
-    network: WaveletNetwork,
-    t_s: np.ndarray,
-    qd: np.ndarray,
-    target_L: np.ndarray,
-    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
-    ridge: float = 1e-8,
-    *,
-    wavelets: Literal["visited", "active"] = "visited",
-    max_wavelets_per_joint: int = 300,
-    min_visits: int = 20,
-    prune_tol_nm: float = 1e-5,
-    row_stride: int = 1,
-    chunk_samples: int = 16384,
-    update_coverage: bool = True,
-    fit_fallback: bool = True,
-) -> BatchFitResult:
-    """Batch ridge least squares of the WN's filtered basis against ``target_L`` (N x n).
-
-    ``target_L`` is the filtered friction torque (filtered motor torque minus filtered
-    rigid-body torque). ``wavelets="active"`` fits the current active set (e.g. grown by
-    :class:`LyapunovAdapter`); ``"visited"`` takes the pool wavelets with at least
-    ``min_visits`` samples within one grid step of their centre and, when they are more than
-    ``max_wavelets_per_joint``, keeps all visited wavelets of the coarsest dilation plus the
-    best by :func:`wavelet_scores` (joints with identical pools, like the Omni's 2 and 3, share
-    the candidates via their summed normalised scores, and so one Gram matrix). ``ridge`` is
-    relative to the mean diagonal of the Gram matrix. Wavelets whose peak contribution
-    ``|c| a0^(-d m/2)`` is below ``prune_tol_nm`` are pruned and the rest refitted. The
-    network's active sets and coefficients are replaced; with ``fit_fallback`` its coupled-CV
-    fallback is fitted to the same target; with ``update_coverage`` the samples are counted
-    into its coverage map.
-
-    ``row_stride`` > 1 builds the normal equations from every ``row_stride``-th row of the
-    filtered basis (the basis is still evaluated and filtered on every sample); ``rms_nm`` and
-    ``relative_rms`` are then over those rows. The identification pipeline uses
-    :func:`teleop_force.identification.wavelet_training.batch_row_stride` (3 at 1 kHz and 8 Hz).
-    Groups of
-    joints with the same pool geometry are fitted in parallel threads, with BLAS on one
-    thread (``threadpoolctl.threadpool_limits``): OpenBLAS's workers busy-wait between the
-    small calls, which on shared cores were measured 10 to 400 times slower than one thread.
-    """
-    start_wall = time.perf_counter()
-    qd = np.asarray(qd, dtype=float)
-    target_L = np.asarray(target_L, dtype=float)
-    t_arr = np.asarray(t_s, dtype=float).reshape(-1)
-    n = network.n_joints
-    if qd.shape != (t_arr.size, n) or target_L.shape != (t_arr.size, n):
-        raise DataError(
-            f"qd and target_L must be ({t_arr.size}, {n}), got {qd.shape}, {target_L.shape}"
-        )
-    if not (np.all(np.isfinite(qd)) and np.all(np.isfinite(target_L))):
-        raise DataError("qd / target_L contain non-finite values")
-    if wavelets not in ("visited", "active"):
-        raise ConfigurationError(f"wavelets must be 'visited' or 'active', got {wavelets!r}")
-    if not ridge >= 0.0 or row_stride < 1 or max_wavelets_per_joint < 1 or chunk_samples < 1:
-        raise ConfigurationError("need ridge >= 0, row_stride >= 1, max_wavelets >= 1")
-    pool = network.pool
-
-    def geometry(j: int) -> tuple[object, ...]:
-        s = network.specs[j]
-        return (s.inputs, s.x_min_rad_s, s.x_max_rad_s, s.m_min, s.m_max)
-
-    groups: dict[tuple[object, ...], list[int]] = {}
-    for j in range(n):
-        groups.setdefault(geometry(j), []).append(j)
-
-    def candidates_of(members: list[int]) -> dict[int, np.ndarray]:
-        """Local candidate indices of joints sharing one pool geometry."""
-        j0 = members[0]
-        if wavelets == "active":
-            return {j: network.active_indices(j) for j in members}
-        off = int(pool.joint_offsets[j0])
-        visited = np.flatnonzero(wavelet_visits(network, j0, qd) >= min_visits)
-        if visited.size <= max_wavelets_per_joint:
-            chosen = visited
-        else:
-            total = np.zeros(pool.joint_size(j0))
-            for sc in wavelet_scores_of_targets(network, j0, qd, target_L[:, members]):
-                total += sc / max(float(sc.max()), 1e-300)
-            coarse = visited[pool.m[off + visited] == network.specs[j0].m_max]
-            rest = np.setdiff1d(visited, coarse)
-            budget = max(0, max_wavelets_per_joint - coarse.size)
-            best = rest[np.argsort(-total[rest], kind="stable")[:budget]]
-            chosen = np.sort(np.concatenate((coarse, best)))
-        return dict.fromkeys(members, chosen)
-
-    FitOfJoint = tuple[int, int, np.ndarray, np.ndarray, float, float]
-
-    def fit_group(members: list[int]) -> list[FitOfJoint]:
-        """Candidates and ridge fits of joints sharing one pool geometry.
-
-        Returns ``(joint, candidates, global indices kept, coefficients, rms, relative rms)``.
-        """
-        out = []
-        local = candidates_of(members)
-        done: set[int] = set()
-        for j in members:
-            if j in done:
-                continue
-            # joints with the same candidates share one Gram matrix
-            same = [i for i in members if np.array_equal(local[i], local[j])]
-            done.update(same)
-            offset = int(pool.joint_offsets[j])
-            gram, rhs, yy, rows = filtered_basis_normal_equations(
-                network, j, local[j] + offset, t_arr, qd, target_L[:, same],
-                cutoff_hz, row_stride, chunk_samples,
-            )  # fmt: skip
-            amp = pool.amplitude[local[j] + offset]
-            for col, i in enumerate(same):
-                keep, coef = _ridge_with_pruning(gram, rhs[:, col], amp, ridge, prune_tol_nm)
-                gk = gram[np.ix_(keep, keep)]
-                sse = float(yy[col] - 2.0 * coef @ rhs[keep, col] + coef @ gk @ coef)
-                rms_i = math.sqrt(max(sse, 0.0) / max(rows, 1))
-                rel_i = rms_i / max(math.sqrt(float(yy[col]) / max(rows, 1)), 1e-300)
-                kept = local[i][keep] + int(pool.joint_offsets[i])
-                out.append((i, len(local[i]), kept, coef, rms_i, rel_i))
-        return out
-
-    # the joint groups are independent: one thread each (the kernel and BLAS release the GIL)
-    tasks = list(groups.values())
-    workers = max(1, min(len(tasks), os.cpu_count() or 1))
-    # one BLAS thread for the whole pool: threadpoolctl's limit is process-wide and restored
-    # on exit, so it is set once here, around every group's thread, not inside each
-    with (
-        threadpool_limits(limits=1, user_api="blas"),
-        ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fit_batch") as executor,
-    ):
-        futures = [executor.submit(fit_group, members) for members in tasks]
-        if update_coverage and network.coverage is not None:
-            network.coverage.add(qd)
-        results = [item for future in futures for item in future.result()]
-    candidates = [0] * n
-    sizes = [0] * n
-    rms = np.zeros(n)
-    rel = np.zeros(n)
-    for i, n_candidates, kept, coef, rms_i, rel_i in sorted(results, key=lambda r: r[0]):
-        network.set_structure(i, kept, coef)
-        candidates[i] = n_candidates
-        sizes[i] = int(kept.size)
-        rms[i] = rms_i
-        rel[i] = rel_i
-    if fit_fallback:
-        network.fallback = fit_coupled_cv(
-            t_arr, qd, target_L, [s.inputs for s in network.specs], cutoff_hz
-        )
-    if any(not np.all(np.isfinite(network.joint_parameters(j))) for j in range(n)):
-        raise ModelError("fit_batch: least squares produced non-finite coefficients")
-    return BatchFitResult(
-        samples=int(t_arr.size),
-        candidates=tuple(candidates),
-        sizes=tuple(sizes),
-        rms_nm=rms,
-        relative_rms=rel,
-        wall_time_s=time.perf_counter() - start_wall,
-    )

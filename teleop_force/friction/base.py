@@ -15,14 +15,19 @@ parameter at once use :meth:`FrictionModel.regressor` and work with both.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
+from msgspec import Meta
 
 from teleop_force.errors import ModelError, ModelFileError
 
 #: Most joints a model file may declare (keeps a bad count from allocating gigabytes).
 MAX_JOINTS = 256
+#: A model file's joint count (``n_joints``).
+JointCount = Annotated[int, Meta(ge=1, le=MAX_JOINTS)]
+#: A 0-based joint index in a model file.
+JointIndex = Annotated[int, Meta(ge=0, lt=MAX_JOINTS)]
 
 
 def file_error(exc: Exception, field: str, what: str) -> ModelFileError:

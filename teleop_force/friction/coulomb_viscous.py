@@ -11,11 +11,35 @@ from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
+from msgspec import Struct
 
 from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.base import FrictionModel, JointCount, JointIndex
 from teleop_force.friction.terms import linear_friction_basis, term_table_torque
-from teleop_force.schema import read_entry
+from teleop_force.schema import Finite, read_entry
+
+
+class CoulombViscousEntry(Struct):
+    """``cv``: Coulomb and viscous per joint."""
+
+    n_joints: JointCount
+    parameters: list[Finite]
+
+
+class CoupledCoulombViscousEntry(CoulombViscousEntry):
+    """``coupled-cv``: the joints each joint's friction sees (0-based), inside the model."""
+
+    friction_inputs: list[list[JointIndex]]
+
+    def __post_init__(self) -> None:
+        n = self.n_joints
+        if len(self.friction_inputs) != n:
+            raise ModelFileError(f"expected {n} lists of joint indices", column="friction_inputs")
+        for j, inputs in enumerate(self.friction_inputs):
+            if any(k >= n for k in inputs):
+                raise ModelFileError(
+                    f"joint index {max(inputs)} outside 0..{n - 1}", column=f"friction_inputs[{j}]"
+                )
 
 
 class CoulombViscous(FrictionModel):
@@ -56,8 +80,6 @@ class CoulombViscous(FrictionModel):
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.file_schema import CoulombViscousEntry
-
         entry = read_entry(data, CoulombViscousEntry)
         return _built(lambda: cls(entry.n_joints, np.array(entry.parameters)))
 
@@ -141,8 +163,6 @@ class CoupledCoulombViscous(FrictionModel):
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoupledCoulombViscous:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.file_schema import CoupledCoulombViscousEntry
-
         entry = read_entry(data, CoupledCoulombViscousEntry)
         inputs = tuple(tuple(s) for s in entry.friction_inputs)
         return _built(lambda: cls(entry.n_joints, inputs, np.array(entry.parameters)))

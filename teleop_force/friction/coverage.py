@@ -19,20 +19,26 @@ covered the velocity plane.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from msgspec import Meta, Struct
 from scipy.ndimage import gaussian_filter
 
 from teleop_force.errors import ConfigurationError, DataError, ModelFileError
-from teleop_force.friction.terms import grid_density_batch, smoothstep_values
+from teleop_force.friction.base import JointIndex
+from teleop_force.friction.terms import coverage_trust_values, grid_density_batch
+from teleop_force.schema import Finite, read_entry
 
 #: Most cells one joint's grid may have (a bad region or cell size cannot allocate gigabytes).
 MAX_GRID_CELLS = 1_000_000
 #: Widest smoothing, in cells (the Gaussian's cost grows with it: 1e6 took 90 s per grid).
 MAX_SMOOTHING_CELLS = 50.0
+#: A grid cell's sample count in a model file (non-negative, finite).
+SampleCount = Annotated[float, Meta(ge=0.0, le=sys.float_info.max)]
 
 
 @dataclass(frozen=True)
@@ -88,10 +94,18 @@ class CoverageConfig:
         }
 
 
-def smoothstep(s: np.ndarray) -> np.ndarray:
-    """``3 s^2 - 2 s^3`` of ``s`` clipped to [0, 1] (``terms.smoothstep``)."""
-    s = np.asarray(s, dtype=float)
-    return smoothstep_values(np.ascontiguousarray(s).reshape(-1)).reshape(s.shape)
+def smoothed_density(counts: np.ndarray, smoothing_cells: float) -> np.ndarray:
+    """Smooth a grid's samples per cell by a Gaussian of ``smoothing_cells`` cells (0: none)."""
+    if smoothing_cells > 0:
+        return gaussian_filter(counts, smoothing_cells, mode="constant")
+    return counts
+
+
+def density_trust(density: np.ndarray, untrained: float, trained: float) -> np.ndarray:
+    """Trust of every entry of a smoothed density array, any shape (``terms.coverage_trust``)."""
+    density = np.asarray(density, dtype=float)
+    flat = np.ascontiguousarray(density).reshape(-1)
+    return coverage_trust_values(flat, float(untrained), float(trained)).reshape(density.shape)
 
 
 @dataclass(frozen=True)
@@ -106,6 +120,22 @@ class _Grid:
     @property
     def cell(self) -> np.ndarray:
         return (self.hi - self.lo) / np.asarray(self.shape)
+
+
+class CoverageGridEntry(Struct):
+    """One joint's occupancy grid: inputs, region and (flattened) sample counts."""
+
+    inputs: list[JointIndex]
+    x_min_rad_s: list[Finite]
+    x_max_rad_s: list[Finite]
+    counts: list[SampleCount]
+
+
+class CoverageEntry(Struct):
+    """A coverage map: its configuration and one grid per joint."""
+
+    config: CoverageConfig
+    grids: list[CoverageGridEntry]
 
 
 class CoverageMap:
@@ -216,8 +246,7 @@ class CoverageMap:
         cached = self._density[joint]
         if cached is None:
             counts = self._counts[joint]
-            sigma = self.config.smoothing_cells
-            cached = gaussian_filter(counts, sigma, mode="constant") if sigma > 0 else counts
+            cached = smoothed_density(counts, self.config.smoothing_cells)
             self._density[joint] = cached
         return cached
 
@@ -249,7 +278,7 @@ class CoverageMap:
         lo, hi = self.config.untrained_density, self.config.trained_density
         out = np.empty((batch.shape[0], self.n_joints))
         for j in range(self.n_joints):
-            out[:, j] = smoothstep((self.density(batch, j) - lo) / (hi - lo))
+            out[:, j] = density_trust(self.density(batch, j), lo, hi)
         return out[0] if single else out
 
     def fraction_on_trained_ground(
@@ -260,7 +289,7 @@ class CoverageMap:
         if batch.shape[0] == 0:
             return 0.0
         lo, hi = self.config.untrained_density, self.config.trained_density
-        w = smoothstep((self.density(batch, joint) - lo) / (hi - lo))
+        w = density_trust(self.density(batch, joint), lo, hi)
         return float(np.mean(w >= min_trust))
 
     def to_dict(self) -> dict[str, Any]:
@@ -281,9 +310,6 @@ class CoverageMap:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoverageMap:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.file_schema import CoverageEntry
-        from teleop_force.schema import read_entry
-
         entry = read_entry(data, CoverageEntry)
         grids = entry.grids
         try:

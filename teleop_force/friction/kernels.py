@@ -1,7 +1,7 @@
 """Compiled (numba) kernels of the wavelet-network fits (batch and Lyapunov adaptation).
 
 :class:`FilteredWavelets` is the inner loop of
-:func:`teleop_force.friction.adaptation.filtered_basis_normal_equations`: it evaluates the
+:func:`teleop_force.friction.batch_fit.filtered_basis_normal_equations`: it evaluates the
 Mexican-hat wavelets ``psi_k(x) = amp_k (1 - r2) exp(-r2 / 2)``, ``r2 = |x a0^-m_k - n_k b0|^2``,
 of one joint network on *every* sample, runs the first-order low-pass filter
 ``y_k[t] = a_t y_k[t-1] + (1 - a_t) psi_k(x[t])`` on every sample, and returns the filtered
@@ -422,7 +422,7 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) the kernel on a tiny problem; return seconds.
 
     The first call of a numba function in a process compiles it, or loads the compiled code
-    from the cache: :func:`~teleop_force.friction.adaptation.fit_batch` pays that once.
+    from the cache: :func:`~teleop_force.friction.batch_fit.fit_batch` pays that once.
     Benchmarks call this first so that their figures are the steady state.
     """
     start = time.perf_counter()

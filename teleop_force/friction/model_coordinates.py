@@ -22,14 +22,15 @@ on that row's velocity). With an identity coupling this is :class:`CoulombViscou
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
+from msgspec import Meta, Struct
 
 from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction.base import MAX_JOINTS, FrictionModel
-from teleop_force.friction.terms import term_table_torque
-from teleop_force.schema import read_entry
+from teleop_force.friction.base import MAX_JOINTS, FrictionModel, JointCount
+from teleop_force.friction.terms import linear_friction_basis, term_table_torque
+from teleop_force.schema import Finite, read_entry
 
 #: Most model joints (coupling rows) a model file may declare.
 MAX_MODEL_JOINTS = 4 * MAX_JOINTS
@@ -37,6 +38,22 @@ MAX_MODEL_JOINTS = 4 * MAX_JOINTS
 _PARALLEL_TOLERANCE = 1e-9
 #: Parameters per axis: Coulomb and viscous.
 _PER_AXIS = 2
+
+
+class ModelCoordinateEntry(Struct):
+    """``model-cv``: an ``n_model x n_joints`` coupling and two parameters per direction."""
+
+    n_joints: JointCount
+    coupling: Annotated[list[list[Finite]], Meta(min_length=1, max_length=MAX_MODEL_JOINTS)]
+    parameters: list[Finite]
+
+    def __post_init__(self) -> None:
+        if any(len(row) != self.n_joints for row in self.coupling):
+            lengths = sorted({len(row) for row in self.coupling})
+            raise ModelFileError(
+                f"expected rows of {self.n_joints} numbers, got rows of {lengths}",
+                column="coupling",
+            )
 
 
 def distinct_axes(coupling: np.ndarray) -> tuple[int, ...]:
@@ -98,18 +115,20 @@ class ModelCoordinateFriction(FrictionModel):
         """Velocities of the axes, ``(N, n) -> (N, n_axes)``."""
         return np.asarray(qd, dtype=float) @ self.axes.T
 
-    def axis_torque(self, qd: np.ndarray) -> np.ndarray:
-        """Friction torque of each axis, ``f(T qd)`` over the distinct rows, ``(N, n_axes)``."""
-        w = self.axis_velocities(qd)
-        p = self.parameters.reshape(self.n_axes, _PER_AXIS)
-        return np.sign(w) * p[:, 0] + w * p[:, 1]
-
     def regressor(self, qd: np.ndarray) -> np.ndarray:
-        """``(N, n, 2 n_axes)``: joint ``j``'s row holds ``T[a, j] [sgn(w_a), w_a]`` per axis."""
-        w = self.axis_velocities(np.atleast_2d(qd))
-        per_axis = np.stack((np.sign(w), w), axis=2)
+        """``(N, n, 2 n_axes)``: joint ``j``'s row holds ``T[a, j] [sgn(w_a), w_a]`` per axis.
+
+        The columns ``[sgn(w_a), w_a]`` are the terms' (:func:`linear_friction_basis`).
+        """
+        qd = np.ascontiguousarray(np.atleast_2d(np.asarray(qd, dtype=float)))
+        if qd.ndim != 2 or qd.shape[1] != self.n_joints:
+            raise ModelError(
+                f"{self.kind}: expected {self.n_joints} velocities, got {qd.shape[-1]}"
+            )
+        basis = linear_friction_basis(qd, self.axes, 0, self.n_axes)
+        per_axis = basis.reshape(qd.shape[0], self.n_axes, _PER_AXIS)
         out = np.einsum("aj,kas->kjas", self.axes, per_axis)
-        return out.reshape(w.shape[0], self.n_joints, _PER_AXIS * self.n_axes)
+        return out.reshape(qd.shape[0], self.n_joints, _PER_AXIS * self.n_axes)
 
     def torque(self, qd: np.ndarray) -> np.ndarray:
         """Friction torque ``T^T f(T qd)`` [N m] ((n,) -> (n,), or (N, n) -> (N, n))."""
@@ -177,8 +196,6 @@ class ModelCoordinateFriction(FrictionModel):
         The coupling must be an ``n_model x n_joints`` matrix of finite numbers with full
         column rank, the parameters two finite numbers per distinct row direction.
         """
-        from teleop_force.friction.file_schema import ModelCoordinateEntry
-
         entry = read_entry(data, ModelCoordinateEntry)
         try:
             model = cls(np.array(entry.coupling))

@@ -312,6 +312,17 @@ def smoothstep_values(s: np.ndarray) -> np.ndarray:  # pragma: no cover - compil
 
 
 @njit_cached()
+def coverage_trust_values(
+    density: np.ndarray, untrained: float, trained: float
+) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`coverage_trust` of every entry of a 1-D array of smoothed densities."""
+    out = np.empty(density.size)
+    for k in range(density.size):
+        out[k] = coverage_trust(density[k], untrained, trained)
+    return out
+
+
+@njit_cached()
 def coverage_trust_into(
     qd: np.ndarray,
     grid_ints: np.ndarray,

@@ -40,12 +40,19 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import product
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar, overload
 
 import numpy as np
+from msgspec import Meta, Struct
 
 from teleop_force.errors import ConfigurationError, ModelError, ModelFileError
-from teleop_force.friction.base import FILE_ERRORS, FrictionModel, file_error
+from teleop_force.friction.base import (
+    FILE_ERRORS,
+    FrictionModel,
+    JointCount,
+    JointIndex,
+    file_error,
+)
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
@@ -54,7 +61,7 @@ from teleop_force.friction.terms import (
     wavelet_block,
     wavelet_network_torque_into,
 )
-from teleop_force.schema import built_by, read_entry
+from teleop_force.schema import Finite, built_by, read_entry
 
 A0_DEFAULT = 2.0
 B0_DEFAULT = 1.0
@@ -65,6 +72,10 @@ _EVAL_CHUNK_ELEMENTS = 160_000
 MAX_POOL_SIZE = 1_000_000
 MAX_DILATIONS = 64
 MAX_INPUTS = 8
+#: A wavelet's dilation bound: the pool's own limits refuse what is too large to build.
+Dilation = Annotated[int, Meta(ge=-1000, le=1000)]
+#: A wavelet's dilation or translation in an ``active`` row (exact in a float64).
+WaveletIndex = Annotated[int, Meta(ge=-(2**52), le=2**52)]
 
 
 def mexican_hat(x: np.ndarray) -> np.ndarray:
@@ -77,6 +88,18 @@ def mexican_hat(x: np.ndarray) -> np.ndarray:
     return mexican_hat_values(np.ascontiguousarray(r2).reshape(-1)).reshape(r2.shape)
 
 
+@overload
+def wavelet_amplitude(a0: float, d: int, m: int) -> float: ...
+@overload
+def wavelet_amplitude(a0: float, d: np.ndarray, m: np.ndarray) -> np.ndarray: ...
+def wavelet_amplitude(a0: float, d: int | np.ndarray, m: int | np.ndarray) -> float | np.ndarray:
+    """Return the amplitude ``a0^(-d m / 2)`` of a wavelet of dilation ``m`` on ``d`` inputs.
+
+    Of ints, or elementwise of arrays (the pool's ``amplitude``): the one definition.
+    """
+    return a0 ** (-d * m / 2.0)
+
+
 def wavelet(
     x: np.ndarray, m: int, n: Sequence[int], a0: float = A0_DEFAULT, b0: float = B0_DEFAULT
 ) -> np.ndarray:
@@ -84,7 +107,7 @@ def wavelet(
     n_arr = np.asarray(n, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float)
     d = n_arr.size
-    return a0 ** (-d * m / 2.0) * mexican_hat(a0 ** (-m) * x - n_arr * b0)
+    return wavelet_amplitude(a0, d, m) * mexican_hat(a0 ** (-m) * x - n_arr * b0)
 
 
 def psi_block(
@@ -175,9 +198,39 @@ class WaveletJointSpec:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WaveletJointSpec:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
-        from teleop_force.friction.file_schema import WaveletJointSpecEntry
-
         return read_entry(data, WaveletJointSpecEntry).spec()
+
+
+class WaveletJointSpecEntry(Struct):
+    """One joint network's inputs, velocity region, dilations and thresholds."""
+
+    inputs: list[JointIndex]
+    x_min_rad_s: list[Finite]
+    x_max_rad_s: list[Finite]
+    m_min: Dilation
+    m_max: Dilation
+    mu: Finite
+    theta: Finite
+
+    def __post_init__(self) -> None:
+        self.spec()  # WaveletJointSpec's own checks, named after this entry
+
+    def spec(self) -> WaveletJointSpec:
+        """Build the joint's :class:`WaveletJointSpec` (ModelFileError if inconsistent)."""
+        try:
+            return WaveletJointSpec(
+                tuple(self.inputs), tuple(self.x_min_rad_s), tuple(self.x_max_rad_s),
+                self.m_min, self.m_max, self.mu, self.theta,
+            )  # fmt: skip
+        except ConfigurationError as exc:
+            raise ModelFileError(str(exc)) from None
+
+
+class WaveletJointEntry(WaveletJointSpecEntry):
+    """A joint network: its spec, active wavelets as ``[m, n1..nd]`` rows, coefficients."""
+
+    active: list[list[WaveletIndex]]
+    coefficients: list[Finite]
 
 
 def omni_wavelet_specs(
@@ -273,7 +326,7 @@ class WaveletPool:
         self.d = np.asarray([spec.d for spec in self.specs], dtype=np.int64)[self.joint]
         scale = self.a0 ** self.m.astype(float)
         self.inv_scale = 1.0 / scale
-        self.amplitude = self.a0 ** (-self.d * self.m / 2.0)
+        self.amplitude = wavelet_amplitude(self.a0, self.d, self.m)
         real = np.arange(self.dmax)[None, :] < self.d[:, None]
         self.centre = np.where(real, self.n * (scale * self.b0)[:, None], 0.0)
         self.centre_scaled = self.centre * self.inv_scale[:, None]
@@ -474,6 +527,38 @@ class _SingleSampleTorque:
         out = np.zeros(self.n)
         wavelet_network_torque_into(np.asarray(qd, dtype=float), self.inputs, self.table, out)
         return out
+
+
+class WaveletNetworkEntry(Struct):
+    """``wn``: joint networks, the pool constants, the fallback and the coverage map."""
+
+    n_joints: JointCount
+    joints: list[WaveletJointEntry]
+    a0: Finite = A0_DEFAULT
+    b0: Finite = B0_DEFAULT
+    edge_ring: bool = True
+    fallback: CoupledCoulombViscous | None = None
+    coverage: CoverageMap | None = None
+
+    def __post_init__(self) -> None:
+        n = self.n_joints
+        if len(self.joints) != n:
+            raise ModelFileError(f"expected {n} joint networks", column="joints")
+        for j, joint in enumerate(self.joints):
+            if max(joint.inputs) >= n:
+                raise ModelFileError(
+                    f"velocity index {max(joint.inputs)} >= {n}", column=f"joints[{j}].inputs"
+                )
+        if self.coverage is not None:
+            if self.coverage.n_joints != n:
+                raise ModelFileError(
+                    f"{self.coverage.n_joints} grids for {n} joints", column="coverage.grids"
+                )
+            for j in range(n):
+                if max(self.coverage.grid_inputs(j)) >= n:
+                    raise ModelFileError(
+                        f"reads a velocity beyond joint {n}", column=f"coverage.grids[{j}].inputs"
+                    )
 
 
 class WaveletNetwork(FrictionModel):
@@ -784,8 +869,6 @@ class WaveletNetwork(FrictionModel):
         once), one coefficient per active wavelet, the fallback and coverage map of the same
         joints.
         """
-        from teleop_force.friction.file_schema import WaveletNetworkEntry
-
         entry = read_entry(data, WaveletNetworkEntry, dec_hook=built_by())
         specs = [joint.spec() for joint in entry.joints]
         field = "joints"

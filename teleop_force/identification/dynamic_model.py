@@ -1,6 +1,11 @@
 """The identified dynamic model: rigid-body base parameters, friction and found effects.
 
-Saved as JSON so it can be read back exactly (``save`` / ``load``) and shared.
+Saved as JSON so it can be read back exactly (``save`` / ``load``) and shared. The file after
+its ``format`` and ``version`` (checked first, so that a file of another kind says so) is read
+as :class:`ModelFileEntry`: the base parameters, friction model and effects are read by their
+own entries (beside the classes they describe) or built by their readers (``from_dict``,
+through :func:`teleop_force.schema.built_by`), and the counts that tie them together are
+checked here.
 """
 
 from __future__ import annotations
@@ -11,18 +16,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from msgspec import Struct
 
-from teleop_force.errors import ModelError, ModelFileError
-from teleop_force.friction.base import FrictionModel
-from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
-from teleop_force.identification.regressor import BaseParameters
+from teleop_force.errors import ModelError, ModelFileError, TeleopForceError
+from teleop_force.friction import friction_from_dict
+from teleop_force.friction.base import FrictionModel, JointCount
+from teleop_force.identification.effects import FoundEffect, effect_from_dict
+from teleop_force.identification.filtered_regressor import (
+    FilterConfig,
+    FilteredSignals,
+    FilterEntry,
+)
+from teleop_force.identification.regressor import (
+    BaseParameters,
+    BaseParametersEntry,
+    full_parameter_names,
+)
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.description import RobotDescription
 from teleop_force.robots.registry import resolve_robot
-from teleop_force.schema import read_entry
+from teleop_force.schema import Finite, NonEmptyStr, built_by, read_entry, shown
 
 MODEL_FORMAT = "teleop-force-model"
 MODEL_VERSION = 1
+
+#: Builds the entries that are objects of the model (``base``, ``friction``, ``effects``).
+MODEL_FILE_HOOK = built_by({FrictionModel: friction_from_dict, FoundEffect: effect_from_dict})
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,14 +148,12 @@ class DynamicModel:
             raise ModelFileError("not a teleop-force model file", path=source, column="format")
         version = data.get("version")
         if type(version) is not int or version != MODEL_VERSION:
-            shown = repr(version) if not isinstance(version, int) or abs(version) < 10**9 else "?"
+            given = repr(version) if not isinstance(version, int) or abs(version) < 10**9 else "?"
             raise ModelFileError(
-                f"model version {shown} is not supported (expected {MODEL_VERSION})",
+                f"model version {given} is not supported (expected {MODEL_VERSION})",
                 path=source,
                 column="version",
             )
-        from teleop_force.identification.model_file_schema import MODEL_FILE_HOOK, ModelFileEntry
-
         try:
             entry = read_entry(data, ModelFileEntry, dec_hook=MODEL_FILE_HOOK)
             base = None if entry.base is None else entry.base.parameters()
@@ -176,11 +193,53 @@ class DynamicModel:
         return cls.from_dict(data, str(path))
 
 
+class ModelFileEntry(Struct):
+    """A model file's content (``base_names`` is written for readers, never read back)."""
+
+    robot: NonEmptyStr
+    n_joints: JointCount
+    filter: FilterEntry
+    base: BaseParametersEntry | None
+    base_values: list[Finite]
+    friction: FrictionModel
+    base_std: list[float] | None = None  # NaN: unknown
+    offsets_nm: list[Finite] | None = None
+    effects: list[FoundEffect] = []
+    notes: dict[str, Any] = {}
+
+    def __post_init__(self) -> None:
+        n = self.n_joints
+        sizes = {
+            "base_values": (
+                self.base_values,
+                0 if self.base is None else len(self.base.independent),
+            ),
+            "base_std": (self.base_std, len(self.base_values)),
+            "offsets_nm": (self.offsets_nm, n),
+        }
+        for name, (values, size) in sizes.items():
+            if values is not None and len(values) != size:
+                raise ModelFileError(f"expected {size} numbers, got {len(values)}", column=name)
+        if self.friction.n_joints != n:
+            raise ModelFileError(
+                f"friction model has {self.friction.n_joints} joints, expected {n}",
+                column="friction",
+            )
+        for i, effect in enumerate(self.effects):
+            if not 0 <= effect.spec.joint < n:
+                raise ModelFileError(
+                    f"acts on joint {shown(effect.spec.joint)}, outside 0..{n - 1}",
+                    column=f"effects[{i}]",
+                )
+            if effect.reach is not None and effect.reach.size != n:
+                raise ModelFileError(
+                    f"reach has {effect.reach.size} weights, the model has {n} joints",
+                    column=f"effects[{i}].reach",
+                )
+
+
 def _check_base_fits_robot(base: BaseParameters, robot: str, n_joints: int) -> None:
     """Check the base indexes the robot's full parameters (skipped if the robot is not found)."""
-    from teleop_force.errors import TeleopForceError
-    from teleop_force.identification.regressor import full_parameter_names
-
     try:
         description = resolve_robot(robot, n_joints)
     except (TeleopForceError, OSError):

@@ -203,9 +203,13 @@ def shape_basis_into(
             out[at + i] = math.sin(phase)
             out[at + count + i] = math.cos(phase)
         return 2 * count
-    for i in range(count):  # stribeck
-        u = x / parameters[i]
-        out[at + i] = math.exp(-(u * u))
+    if shape == _STRIBECK:
+        for i in range(count):
+            u = x / parameters[i]
+            out[at + i] = math.exp(-(u * u))
+        return count
+    for i in range(count):  # an unknown shape code: NaN, never another shape's values
+        out[at + i] = math.nan
     return count
 
 

@@ -1,7 +1,7 @@
 """Effects the residual loop adds to a model: torques linear in their parameters.
 
 An effect is a :class:`BasisSpec` (which variable, which fixed shape, which modulation) and
-its coefficients. Variables are named as in CONTRACT.md: ``q2`` (angle), ``q2-q3`` (angle
+its coefficients. Variables are named as in docs/cli.md: ``q2`` (angle), ``q2-q3`` (angle
 difference), ``qd1`` (velocity), ``tau3`` (the load on joint 3), ``t`` (time since start).
 
 ``tau<j>`` is the *rigid-body model* torque of joint ``j`` (low-pass filtered), not the measured
@@ -19,11 +19,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from msgspec import UNSET, Meta, Struct, UnsetType, structs
 
 from teleop_force.errors import ModelError
+from teleop_force.friction.base import JointIndex
 from teleop_force.identification.effect_terms import (
     VARIABLE_CODES,
     EffectModulation,
@@ -34,9 +36,12 @@ from teleop_force.identification.effect_terms import (
     effects_torque,
     variable_values_batch,
 )
+from teleop_force.schema import Finite, read_entry
 
 SHAPES = tuple(EffectShape)
 MODULATIONS = tuple(EffectModulation)
+#: A count of bumps or harmonics in a model file.
+BasisCount = Annotated[int, Meta(ge=0, le=10**6)]
 
 
 def _samples(values: np.ndarray) -> np.ndarray:
@@ -327,11 +332,39 @@ def describe_reach(joint: int, reach: Sequence[float] | None) -> str:
     return ", ".join(f"j{i + 1} {w:+.4g}" for i, w in enumerate(reach) if w != 0.0)
 
 
+class BasisSpecEntry(Struct, forbid_unknown_fields=True):
+    """An effect's :class:`BasisSpec`; keys left out take the BasisSpec's defaults."""
+
+    joint: JointIndex
+    variable: str
+    shape: str
+    modulation: str | UnsetType = UNSET
+    lo: Finite | UnsetType = UNSET
+    hi: Finite | UnsetType = UNSET
+    count: BasisCount | UnsetType = UNSET
+    frequency: Finite | UnsetType = UNSET
+    harmonics: BasisCount | UnsetType = UNSET
+    scales: list[Finite] | UnsetType = UNSET
+
+    def spec(self) -> BasisSpec:
+        """Build the :class:`BasisSpec` (ModelError if the shape's settings do not fit)."""
+        given = {k: v for k, v in structs.asdict(self).items() if v is not UNSET}
+        if "scales" in given:
+            given["scales"] = tuple(given["scales"])
+        return BasisSpec(**given)
+
+
+class EffectEntry(Struct, tag="basis", tag_field="kind"):
+    """One found effect: its basis, coefficients, held-out share and reach (motor weights)."""
+
+    spec: BasisSpecEntry
+    coefficients: list[Finite]
+    explained: float = 0.0
+    reach: list[Finite] | None = None
+
+
 def effect_from_dict(data: dict[str, Any]) -> FoundEffect:
     """Rebuild an effect from :meth:`FoundEffect.to_dict`; ModelFileError names a bad field."""
-    from teleop_force.identification.model_file_schema import EffectEntry
-    from teleop_force.schema import read_entry
-
     entry = read_entry(data, EffectEntry)
     reach = None if entry.reach is None else np.array(entry.reach)
     return FoundEffect(entry.spec.spec(), np.array(entry.coefficients), entry.explained, reach)

@@ -24,10 +24,12 @@ so the model at ``k`` is compared with the filtered torque of sample ``k - torqu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from msgspec import Meta, Struct
 
-from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.errors import ConfigurationError, DataError, ModelFileError
 from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.lowpass import (
     DEFAULT_CUTOFF_HZ,
@@ -35,6 +37,7 @@ from teleop_force.lowpass import (
     lowpass_batch,
     sample_intervals,
 )
+from teleop_force.schema import Finite
 
 
 @dataclass(frozen=True)
@@ -57,6 +60,27 @@ class FilterConfig:
             raise ConfigurationError("torque_lag_samples must be 0 or 1")
         if self.warmup_s < 0:
             raise ConfigurationError("warmup_s must be >= 0")
+
+
+class FilterEntry(Struct, forbid_unknown_fields=True):
+    """``filter``: the :class:`FilterConfig` of identification (its defaults when absent)."""
+
+    cutoff_hz: Finite = FilterConfig.cutoff_hz
+    velocity_cutoff_hz: Finite = FilterConfig.velocity_cutoff_hz
+    torque_lag_samples: Annotated[int, Meta(ge=0, le=1)] = FilterConfig.torque_lag_samples
+    warmup_s: Finite = FilterConfig.warmup_s
+
+    def __post_init__(self) -> None:
+        self.config()  # FilterConfig's own range checks, named after this entry
+
+    def config(self) -> FilterConfig:
+        """Build the :class:`FilterConfig` (ModelFileError when out of range)."""
+        try:
+            return FilterConfig(
+                self.cutoff_hz, self.velocity_cutoff_hz, self.torque_lag_samples, self.warmup_s
+            )
+        except ConfigurationError as exc:
+            raise ModelFileError(str(exc)) from None
 
 
 def estimate_velocity(t_s: np.ndarray, q_rad: np.ndarray, cutoff_hz: float | None) -> np.ndarray:

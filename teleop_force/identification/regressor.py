@@ -20,16 +20,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import Annotated, cast
 
 import numpy as np
 import pinocchio as pin
 import scipy.linalg
+from msgspec import Meta, Struct
 
-from teleop_force.errors import ModelError
+from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.robots.description import LINK_PARAMETER_NAMES, RobotDescription
+from teleop_force.schema import Finite, read_entry
 
 _DIRECTIONAL_STEP = 1e-5
+#: A parameter index in a model file.
+ParameterIndex = Annotated[int, Meta(ge=0, lt=2**31)]
 
 
 def full_parameter_names(description: RobotDescription) -> list[str]:
@@ -195,10 +199,39 @@ class BaseParameters:
         ``independent`` and ``dependent`` (each once), and ``dependency`` finite numbers of
         shape ``(len(independent), len(dependent))``.
         """
-        from teleop_force.identification.model_file_schema import BaseParametersEntry
-        from teleop_force.schema import read_entry
-
         return read_entry(data, BaseParametersEntry).parameters()
+
+
+class BaseParametersEntry(Struct):
+    """``base``: full parameter names, the independent / dependent split and ``K``."""
+
+    full_names: list[str]
+    independent: list[ParameterIndex]
+    dependent: list[ParameterIndex]
+    dependency: list[list[Finite]]
+
+    def __post_init__(self) -> None:
+        size = len(self.full_names)
+        for name, indices in (("independent", self.independent), ("dependent", self.dependent)):
+            if any(i >= size for i in indices):
+                raise ModelFileError(f"index {max(indices)} outside 0..{size - 1}", column=name)
+        rows, cols = len(self.independent), len(self.dependent)
+        if len(self.dependency) != rows or any(len(row) != cols for row in self.dependency):
+            raise ModelFileError(f"expected {rows} rows of {cols} numbers", column="dependency")
+        self.parameters()  # BaseParameters' own checks (each index once)
+
+    def parameters(self) -> BaseParameters:
+        """Build the :class:`BaseParameters` (ModelFileError if an index repeats or lacks)."""
+        rows, cols = len(self.independent), len(self.dependent)
+        try:
+            return BaseParameters(
+                tuple(self.full_names),
+                np.array(self.independent, dtype=np.int64),
+                np.array(self.dependent, dtype=np.int64),
+                np.array(self.dependency, dtype=float).reshape(rows, cols),
+            )
+        except ModelError as exc:
+            raise ModelFileError(str(exc), column="independent") from None
 
 
 class RigidBodyRegressor:

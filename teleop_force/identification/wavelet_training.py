@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from teleop_force.friction.adaptation import LyapunovAdapter, fit_batch
+from teleop_force.friction.adaptation import LyapunovAdapter
+from teleop_force.friction.batch_fit import fit_batch
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageConfig, CoverageMap
 from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork

@@ -1,6 +1,6 @@
 """One recording in memory (:class:`Recording`) and its interchange CSV file format.
 
-The file format is the one of ``omni/CONVENTIONS.md``: a header row, then one row per sample,
+The file format is the one of docs/interchange_csv.md: a header row, then one row per sample,
 comma-separated, SI units::
 
     t,q1,...,qn,tau1,...,taun[,f_x,f_y,f_z]

@@ -1,6 +1,6 @@
 """The residual loop's report: its result (:class:`ResidualReport`) and the files written.
 
-JSON (CONTRACT.md), markdown and PNG plots.
+JSON (docs/cli.md), markdown and PNG plots.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ class TracedEffect:
     reach: tuple[float, ...] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Return the CONTRACT.md form (``reach`` only for an effect at a model joint)."""
+        """Return the form of docs/cli.md (``reach`` only for an effect at a model joint)."""
         out: dict[str, Any] = {
             "joint": self.spec.joint + 1,
             "depends_on": self.spec.depends_on(),

@@ -40,7 +40,7 @@ def _frozen_vector(value: ArrayLike, name: str, size: int | None = None) -> np.n
 
 @dataclass(frozen=True)
 class DeviceReading:
-    """One reading of a device, in motor coordinates (CONVENTIONS.md).
+    """One reading of a device, in motor coordinates (docs/conventions.md).
 
     Attributes:
         t_s: Device time of the reading [s].

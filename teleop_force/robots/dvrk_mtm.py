@@ -1,6 +1,6 @@
 """The da Vinci Research Kit master tool manipulator (MTM), from its published parameters.
 
-Kinematics: the standard DH table of ``../shared/datasets/README.md`` (dVRK joint values,
+Kinematics: the standard DH table written out in ``docs/robots.md`` (dVRK joint values,
 lengths ``l_arm = 0.2794``, ``l_forearm = 0.3645``, ``h = 0.1506`` m), seven revolute joints
 (outer yaw, shoulder pitch, elbow pitch, wrist platform, wrist pitch, wrist yaw, wrist roll).
 

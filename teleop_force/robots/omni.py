@@ -1,4 +1,4 @@
-"""The PHANTOM Omni: kinematics of ../shared/omni/CONVENTIONS.md as a pinocchio model.
+"""The PHANTOM Omni: the kinematics of docs/conventions.md as a pinocchio model.
 
 Model coordinates are a serial chain (yaw, shoulder pitch, relative elbow pitch); motor
 coordinates use the absolute forearm angle ``q3``: ``q_model = T @ q_motor`` with
@@ -41,7 +41,7 @@ ROTOR_INERTIA_KGM2 = np.array([2.6e-4, 1.8e-4, 1.8e-4])
 
 
 def tip_position_formula(q: np.ndarray) -> np.ndarray:
-    """Tip position in the base frame from the closed-form formula of CONVENTIONS.md [m]."""
+    """Tip position in the base frame from the closed-form formula of docs/conventions.md [m]."""
     q1, q2, q3 = q
     r = UPPER_ARM_LENGTH_M * np.cos(q2) + FOREARM_LENGTH_M * np.sin(q3)
     return np.array(

@@ -85,7 +85,8 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.service.adaptation import OnlineAdaptation, adaptation_unavailable_reason
+from teleop_force.service.adaptation import OnlineAdaptation
+from teleop_force.service.adaptation_state import AdaptationState
 from teleop_force.service.controls import (
     ControlError,
     create_exclusively,
@@ -94,7 +95,18 @@ from teleop_force.service.controls import (
     read_model_file,
     record_folders,
 )
+from teleop_force.service.counters import MAX_COUNTED_KEYS as MAX_COUNTED_KEYS
+from teleop_force.service.counters import OTHER_KEYS as OTHER_KEYS
+from teleop_force.service.counters import (
+    ControlCounters,
+    EstimateCounters,
+    JointStateCounters,
+    MalformedCounter,
+)
 from teleop_force.service.recorder import BackgroundRecorder
+from teleop_force.service.recording_state import RecordingState
+from teleop_force.service.stream_clock import MAX_STREAM_PAUSE_NS as MAX_STREAM_PAUSE_NS
+from teleop_force.service.stream_clock import StreamClock
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
@@ -108,12 +120,10 @@ from teleop_force.transport.pubsub import (
     undeclare_all,
 )
 from teleop_force.transport.session import open_session, options_from_args
-from teleop_force.transport.stream_stats import LatencyHistogram, RateMeter, SequenceTracker
+from teleop_force.transport.stream_stats import SequenceTracker
 
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
-#: A pause longer than this in the joint-state stamps starts a new stream [ns].
-MAX_STREAM_PAUSE_NS: Final = 500_000_000
 #: Joint states queued for estimation at most (10 min at 1 kHz); beyond, they are dropped.
 MAX_BACKLOG: Final = 600_000
 #: On close, the queued joint states are still estimated for at most this long [s].
@@ -122,9 +132,6 @@ DRAIN_TIMEOUT_S: Final = 10.0
 _RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
 #: A joint-state value (rad, rad/s, N m) beyond this is implausible: counted as malformed.
 MAX_ABS_JOINT_VALUE: Final = 1e6
-#: Keys counted apart in ``malformed.by_key`` at most; further keys are counted together.
-MAX_COUNTED_KEYS: Final = 64
-OTHER_KEYS: Final = "(other keys)"
 
 
 @dataclass(frozen=True)
@@ -184,62 +191,97 @@ class ForceService:
 
         ``memory``: the process's trimmer (started and stopped by its owner, the service
         process), reported under ``memory`` in the statistics.
+
+        The state is kept in named parts, each read by :meth:`stats`: :attr:`stream` (the
+        stream clock and its restart rule), :attr:`joint_states` and :attr:`estimates` (the
+        counters and histograms), :attr:`malformed`, :attr:`controls` (run-time requests),
+        :attr:`adaptation_state` and :attr:`recording`. The model running (:attr:`model`,
+        :attr:`model_path`, :attr:`estimator`) is swapped by :meth:`load_model_file`.
         """
         self.session = session
-        self.model = model
         self.config = config if config is not None else ServiceConfig()
-        self.model_path = model_path
+        self.memory = memory
+        self.model, self.model_path = model, model_path
         self.estimator = ForceEstimator(model)
         self.n_joints = model.n_joints
+        self.allowed_models = model_folders(self.config.models_dirs)
+        self.allowed_records = record_folders(self.config.record_dirs)
+        self._own_js_key = keys.measured_js(self.config.device)
+        self._estimate_key = keys.estimated_cf(self.config.device)
+        self._init_threads()
+        self.stream = StreamClock()
+        self.joint_states = JointStateCounters()
+        self.estimates = EstimateCounters(self.n_joints)
+        self.malformed = MalformedCounter()
+        self.controls = ControlCounters()
+        self.adaptation_state = AdaptationState(self.estimator)
+        self.recording = RecordingState()
+        if self.config.adapt:
+            self.set_adaptation(True)
+        if self.config.record_path is not None:
+            self.recording.recorder = BackgroundRecorder(
+                self._open_writer(self.config.record_path), self._count_malformed
+            )
+
+    def _init_threads(self) -> None:
+        """Prepare the lock, queues and threads, and the Zenoh entities (made by start)."""
         self._lock = threading.Lock()
         self._closed = False
         self._entities: list[Any] = []
         self._publisher: zenoh.Publisher | None = None
         self._inbox: queue.SimpleQueue[tuple[bytes, int] | None] = queue.SimpleQueue()
         self._worker: threading.Thread | None = None
-        self.overflow = 0
-        self._own_js_key = keys.measured_js(self.config.device)
-        self._estimate_key = keys.estimated_cf(self.config.device)
-        self._t0_ns: int | None = None
-        self._last_t_ns: int | None = None
-        self._seq = 0
-        self._started_s = time.perf_counter()
-        self.seqs = SequenceTracker()
-        self.latency = LatencyHistogram()
-        self.processing = LatencyHistogram()
-        self.rate = RateMeter()
-        self.published = 0
-        self.singular = 0
-        self.estimate_errors = 0
-        self.last_error = ""
-        self.malformed_by_key: dict[str, int] = {}
-        self.last_malformed = ""
-        self.on_ground_all = 0
-        self.on_ground_joint = np.zeros(self.n_joints, dtype=np.int64)
-        self.stream_restarts = 0
-        self.last_estimate: m.ForceEstimateMessage | None = None
-        self.adaptation: OnlineAdaptation | None = None
-        self.adapting = False
-        self.adaptation_note = adaptation_unavailable_reason(self.estimator) or ""
-        self.recorder: BackgroundRecorder | None = None
-        self.last_recording: dict[str, Any] | None = None
-        self._record_entities: list[Any] = []
-        self.allowed_models = model_folders(self.config.models_dirs)
-        self.allowed_records = record_folders(self.config.record_dirs)
-        self._controls: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
+        self._queries: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
         self._control_thread: threading.Thread | None = None
-        self.model_loads = 0
-        self.control_requests = 0
-        self.control_refused = 0
-        self.last_refusal = ""
         self._logged: set[str] = set()
-        self.memory = memory
-        if self.config.adapt:
-            self.set_adaptation(True)
-        if self.config.record_path is not None:
-            self.recorder = BackgroundRecorder(
-                self._open_writer(self.config.record_path), self._count_malformed
-            )
+        self._started_s = time.perf_counter()
+
+    # -- state kept for other code (each in one of the parts) ---------------------------------
+
+    @property
+    def seqs(self) -> SequenceTracker:
+        """Sequence tracking of the joint states received (``joint_states.seqs``)."""
+        return self.joint_states.seqs
+
+    @property
+    def published(self) -> int:
+        """Estimates published (``estimates.published``)."""
+        return self.estimates.published
+
+    @property
+    def estimate_errors(self) -> int:
+        """Estimates that could not be computed (``estimates.errors``)."""
+        return self.estimates.errors
+
+    @property
+    def malformed_by_key(self) -> dict[str, int]:
+        """Malformed messages dropped, by key (``malformed.by_key``)."""
+        return self.malformed.by_key
+
+    @property
+    def adaptation(self) -> OnlineAdaptation | None:
+        """The online adaptation driver (``adaptation_state.adaptation``)."""
+        return self.adaptation_state.adaptation
+
+    @property
+    def adapting(self) -> bool:
+        """Whether online adaptation is on (``adaptation_state.enabled``)."""
+        return self.adaptation_state.enabled
+
+    @property
+    def adaptation_note(self) -> str:
+        """Why the running model cannot be adapted, or empty (``adaptation_state.note``)."""
+        return self.adaptation_state.note
+
+    @property
+    def recorder(self) -> BackgroundRecorder | None:
+        """The recording open, or ``None`` (``recording.recorder``)."""
+        return self.recording.recorder
+
+    @property
+    def last_recording(self) -> dict[str, Any] | None:
+        """Final counters of the last recording closed (``recording.last``)."""
+        return self.recording.last
 
     # -- lifetime -----------------------------------------------------------------------------
 
@@ -269,7 +311,7 @@ class ForceService:
         )
         self._control_thread.start()
         self._entities.append(declare_subscriber(session, self._own_js_key, self._on_own_js))
-        if self.recorder is not None:
+        if self.recording.recorder is not None:
             self._subscribe_recorded()
         self._entities.append(
             declare_subscriber(session, keys.service_adapt(device), self._on_adapt)
@@ -298,21 +340,21 @@ class ForceService:
             already = self._closed
             self._closed = True
         entities, self._entities = self._entities, []
-        recorded, self._record_entities = self._record_entities, []
+        recorded = self.recording.take_entities()
         undeclare_all(*reversed(entities), *recorded)
         if already:
             return
         if self._control_thread is not None:
-            self._controls.put(None)
+            self._queries.put(None)
             self._control_thread.join(DRAIN_TIMEOUT_S)
         if self._worker is not None:
             self._inbox.put(None)
             self._worker.join(DRAIN_TIMEOUT_S + 5.0)
         undeclare_all(self._publisher)
-        recorder = self.recorder
+        recorder = self.recording.recorder
         if recorder is not None:
             recorder.close()
-            self.last_recording = recorder.stats()
+            self.recording.last = recorder.stats()
 
     def __enter__(self) -> ForceService:
         """Start the service."""
@@ -332,7 +374,7 @@ class ForceService:
         if self._closed:
             return
         if self._inbox.qsize() >= MAX_BACKLOG:
-            self.overflow += 1
+            self.joint_states.overflow += 1
             return
         self._inbox.put((sample.payload.to_bytes(), arrival_ns))
 
@@ -340,26 +382,20 @@ class ForceService:
         """Every other recorded key (the own joint states come through :meth:`_on_own_js`)."""
         arrival_ns = time.time_ns()
         key = str(sample.key_expr)
-        recorder = self.recorder
+        recorder = self.recording.recorder
         if key == self._own_js_key or recorder is None:
             return
         recorder.submit(key, sample.payload.to_bytes(), arrival_ns)  # decoded by its thread
 
     def _subscribe_recorded(self) -> None:
         for kind in _RECORDED_KINDS:
-            self._record_entities.append(
+            self.recording.entities.append(
                 declare_subscriber(self.session, keys.any_device(kind), self._on_recorded)
             )
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:
-            self._count_malformed_locked(key, exc)
-
-    def _count_malformed_locked(self, key: str, exc: Exception) -> None:
-        if key not in self.malformed_by_key and len(self.malformed_by_key) >= MAX_COUNTED_KEYS:
-            key = OTHER_KEYS  # a flood on ever new keys must not grow the table without end
-        self.malformed_by_key[key] = self.malformed_by_key.get(key, 0) + 1
-        self.last_malformed = f"{key}: {exc}"
+            self.malformed.count(key, exc)
 
     def _work(self) -> None:
         """Worker thread: estimate on the queued joint states, in arrival order."""
@@ -378,9 +414,8 @@ class ForceService:
                 # TeleopForceError: e.g. the session went away under us; anything else is a bug,
                 # logged once per kind, and the next joint state is estimated on regardless.
                 with self._lock:
-                    self.estimate_errors += 1
-                    self.last_error = f"{type(exc).__name__}: {exc}"
-                    self._restart_stream_locked()
+                    self.estimates.count_error(f"{type(exc).__name__}: {exc}")
+                    self.stream.reset()
                 if not isinstance(exc, TeleopForceError):
                     self._log_once(f"estimator: unexpected {type(exc).__name__}: {exc}")
 
@@ -396,7 +431,7 @@ class ForceService:
             return
         with self._lock:
             estimate = self._estimate_locked(js)
-        recorder = self.recorder  # read once: a control request may stop it meanwhile
+        recorder = self.recording.recorder  # read once: a control request may stop it meanwhile
         if recorder is not None:  # written by the recorder's thread, off this one
             recorder.submit(key, js, arrival_ns)
             if estimate is not None:
@@ -405,32 +440,27 @@ class ForceService:
     def _estimate_locked(self, js: m.JointState) -> m.ForceEstimateMessage | None:
         """Estimate on one joint state and publish; return the published message."""
         started_s = time.perf_counter()
-        event = self.seqs.observe(js.seq)
+        inputs = self.joint_states
+        event = inputs.seqs.observe(js.seq)
         if event.duplicate:
             return None
-        self.rate.tick()
-        last = self._last_t_ns
-        if (
-            self._t0_ns is None
-            or event.restarted
-            or (last is not None and (js.t_ns <= last or js.t_ns - last > MAX_STREAM_PAUSE_NS))
-        ):
-            if self._t0_ns is not None:
-                self.stream_restarts += 1
-            self.estimator.reset()
-            if self.adaptation is not None:
-                self.adaptation.reset()
-            self._t0_ns = js.t_ns
-        self._last_t_ns = js.t_ns
-        t_s = (js.t_ns - self._t0_ns) * 1e-9
+        inputs.rate.tick()
+        stream, estimator, adapt = self.stream, self.estimator, self.adaptation_state
+        online = adapt.adaptation
+        if stream.advance(js.t_ns, event.restarted):
+            estimator.reset()
+            if online is not None:
+                online.reset()
+        t_s = stream.t_s
         q = np.array(js.q_rad)
         tau = np.array(js.effort_nm)
+        counters = self.estimates
         try:
-            estimate = self.estimator.update(t_s, q, tau)
-            if self.adapting and self.adaptation is not None:
-                self.adaptation.update(t_s, q, tau)
+            estimate = estimator.update(t_s, q, tau)
+            if adapt.enabled and online is not None:
+                online.update(t_s, q, tau)
             message = m.ForceEstimateMessage(
-                self._seq,
+                counters.published & SEQ_MASK,
                 time.time_ns(),
                 js.seq,
                 tuple(estimate.force_tip_in_base_n.tolist()),
@@ -443,28 +473,13 @@ class ForceService:
         except (DataError, MessageError, ArithmeticError) as exc:
             # A non-finite result: the filter states may hold inf / NaN now, so the next joint
             # state starts a fresh stream instead of failing forever.
-            self.estimate_errors += 1
-            self.last_error = str(exc)
-            self._restart_stream_locked()
+            counters.count_error(str(exc))
+            stream.reset()
             return None
         assert self._publisher is not None
         put(self._publisher, message.encode())
-        self._seq = (self._seq + 1) & SEQ_MASK
-        self.published += 1
-        self.latency.add((time.time_ns() - js.t_ns) * 1e-9)
-        if estimate.singular:
-            self.singular += 1
-        flags = estimate.on_trained_ground
-        self.on_ground_joint += flags
-        if bool(np.all(flags)):
-            self.on_ground_all += 1
-        self.last_estimate = message
-        self.processing.add(time.perf_counter() - started_s)
+        counters.count_published(message, estimate, js.t_ns, started_s)
         return message
-
-    def _restart_stream_locked(self) -> None:
-        """Make the next joint state start a fresh stream (filters reset)."""
-        self._t0_ns = None
 
     def _log_once(self, message: str) -> None:
         if message not in self._logged and len(self._logged) < MAX_COUNTED_KEYS:
@@ -495,14 +510,14 @@ class ForceService:
             if self._closed:
                 query.drop()
                 return
-            self._controls.put((kind, query))
+            self._queries.put((kind, query))
 
         return on_query
 
     def _serve_controls(self) -> None:
         """Control thread: answer model / control queries one at a time, in arrival order."""
         while True:
-            item = self._controls.get()
+            item = self._queries.get()
             if item is None:
                 return
             kind, query = item
@@ -527,7 +542,7 @@ class ForceService:
         if kind == "model" and request is None:
             return self.model_dict()
         with self._lock:
-            self.control_requests += 1
+            self.controls.requests += 1
         try:
             if kind == "model":
                 return self._model_request(request or {})
@@ -540,8 +555,7 @@ class ForceService:
 
     def _refuse(self, error: str) -> dict[str, Any]:
         with self._lock:
-            self.control_refused += 1
-            self.last_refusal = error
+            self.controls.count_refusal(error)
         log(ROLE, f"control request refused: {error}")
         return {"ok": False, "error": error}
 
@@ -583,22 +597,19 @@ class ForceService:
             raise
         except _INCONSISTENT_MODEL_ERRORS as exc:
             raise ControlError(f"{path}: inconsistent model: {type(exc).__name__}: {exc}") from None
-        note = adaptation_unavailable_reason(estimator) or ""
         with self._lock:
-            adapting = self.adapting and not note
             self.model, self.estimator, self.model_path = model, estimator, path
-            self.adaptation = OnlineAdaptation(estimator) if adapting else None
-            self.adapting = adapting
-            self.adaptation_note = note
-            self._restart_stream_locked()
-            self.model_loads += 1
+            self.adaptation_state.follow(estimator)
+            self.stream.reset()
+            self.controls.loads += 1
         log(ROLE, f"now estimating with {path} ({model.friction.kind})")
         return path
 
     def start_recording(self, path_text: object) -> Path:
         """Start recording into a new file of an allowed folder; raise ControlError."""
-        if self.recorder is not None:
-            raise ControlError(f"already recording to {self.recorder.writer.path}; stop it first")
+        current = self.recording.recorder
+        if current is not None:
+            raise ControlError(f"already recording to {current.writer.path}; stop it first")
         path = self.allowed_records.new_recording(path_text)
         create_exclusively(path)
         try:
@@ -607,23 +618,22 @@ class ForceService:
             _remove_quietly(path)
             raise
         with self._lock:
-            self.recorder = recorder
+            self.recording.recorder = recorder
         self._subscribe_recorded()
         log(ROLE, f"recording to {path}")
         return path
 
     def stop_recording(self) -> dict[str, Any]:
         """Stop the recording and close its file; return its final counters."""
-        recorder = self.recorder
+        recorder = self.recording.recorder
         if recorder is None:
             raise ControlError("not recording")
-        entities, self._record_entities = self._record_entities, []
-        undeclare_all(*entities)
+        undeclare_all(*self.recording.take_entities())
         with self._lock:
-            self.recorder = None
+            self.recording.recorder = None
         recorder.close()
         final = recorder.stats()
-        self.last_recording = final
+        self.recording.last = final
         log(ROLE, f"recording stopped: {final['path']} ({final['messages']} messages)")
         return final
 
@@ -632,12 +642,7 @@ class ForceService:
     def set_adaptation(self, on: bool) -> None:
         """Switch online adaptation on or off; raise ConfigurationError if impossible."""
         with self._lock:
-            if not on:
-                self.adapting = False
-                return
-            if self.adaptation is None:
-                self.adaptation = OnlineAdaptation(self.estimator)
-            self.adapting = True
+            self.adaptation_state.switch(on, self.estimator)
 
     def model_dict(self) -> dict[str, Any]:
         """Return the model the estimator runs, as JSON (coefficients as adapted so far)."""
@@ -647,8 +652,7 @@ class ForceService:
     def stats(self) -> dict[str, Any]:
         """JSON statistics of the service (module docstring)."""
         with self._lock:
-            published = self.published
-            last = self.last_estimate
+            estimates = self.estimates
             return {
                 "role": ROLE,
                 "device": self.config.device,
@@ -656,59 +660,25 @@ class ForceService:
                     "path": str(self.model_path) if self.model_path is not None else None,
                     "robot": self.model.robot,
                     "friction": self.model.friction.kind,
-                    "loads": self.model_loads,
+                    "loads": self.controls.loads,
                 },
                 "uptime_s": round(time.perf_counter() - self._started_s, 3),
-                "joint_states": {
-                    **self.seqs.to_dict(),
-                    "stream_restarts": self.stream_restarts,
-                    "backlog": self._inbox.qsize(),
-                    "overflow_dropped": self.overflow,
-                    "rate_hz": round(self.rate.rate_hz, 2),
-                    "mean_rate_hz": round(self.rate.mean_rate_hz, 2),
-                },
-                "estimates": {
-                    "published": published,
-                    "singular": self.singular,
-                    "errors": self.estimate_errors,
-                    "last_error": self.last_error,
-                },
-                "malformed": {
-                    "dropped": sum(self.malformed_by_key.values()),
-                    "by_key": dict(self.malformed_by_key),
-                    "last": self.last_malformed,
-                },
-                "latency_ms": self.latency.summary_ms(),
-                "processing_ms": self.processing.summary_ms(),
-                "on_ground_fraction": _fraction(self.on_ground_all, published),
-                "on_ground_fraction_per_joint": [
-                    _fraction(int(c), published) for c in self.on_ground_joint
-                ],
-                "adaptation": {
-                    "enabled": self.adapting,
-                    "available": not self.adaptation_note,
-                    "note": self.adaptation_note,
-                    "samples": 0 if self.adaptation is None else self.adaptation.samples,
-                },
-                "recording": None if self.recorder is None else self.recorder.stats(),
-                "last_recording": self.last_recording,
+                "joint_states": self.joint_states.to_dict(
+                    stream_restarts=self.stream.restarts, backlog=self._inbox.qsize()
+                ),
+                "estimates": estimates.to_dict(),
+                "malformed": self.malformed.to_dict(),
+                "latency_ms": estimates.latency.summary_ms(),
+                "processing_ms": estimates.processing.summary_ms(),
+                "on_ground_fraction": estimates.on_ground_fraction(),
+                "on_ground_fraction_per_joint": estimates.on_ground_fraction_per_joint(),
+                "adaptation": self.adaptation_state.to_dict(),
+                "recording": self.recording.current_stats(),
+                "last_recording": self.recording.last,
                 "memory": None if self.memory is None else self.memory.stats(),
-                "controls": {
-                    "requests": self.control_requests,
-                    "refused": self.control_refused,
-                    "last_refusal": self.last_refusal,
-                },
-                "last_estimate": None
-                if last is None
-                else {
-                    "source_seq": last.source_seq,
-                    "f_n": [None if math.isnan(x) else x for x in last.f_n],
-                },
+                "controls": self.controls.to_dict(),
+                "last_estimate": estimates.last_estimate_dict(),
             }
-
-
-def _fraction(count: int, total: int) -> float | None:
-    return None if total == 0 else round(count / total, 6)
 
 
 def _plausible(js: m.JointState) -> bool:

@@ -8,7 +8,7 @@ the signed distance of the tip, ``delta = max(0, -d)`` its penetration and
     f_n     = max(0, k delta (1 + lambda delta_dot))         Hunt-Crossley, exponent 1
     F_env   = f_n n - mu_t f_n v_t                          v_t = v - (v . n) n
 
-Both terms vanish continuously at first touch. The force reported everywhere (CONVENTIONS.md)
+Both terms vanish continuously at first touch. The force reported everywhere (docs/conventions.md)
 is the force of the tip ON the environment, ``F = -F_env``: pressing down into a horizontal
 surface gives ``f_y < 0``. The plant applies ``-J^T F = J^T F_env`` at the joints.
 """

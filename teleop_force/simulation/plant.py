@@ -1,6 +1,6 @@
 """The simulated PHANTOM Omni behind the :class:`~teleop_force.robots.device.Device` interface.
 
-Dynamics in motor coordinates (CONVENTIONS.md), with every effect on the left-hand side::
+Dynamics in motor coordinates (docs/conventions.md), with every effect on the left-hand side::
 
     M(q) qdd + C(q, qd) qd + N(q) + k (q2 - pi/2) + tau_f(qd) + tau_effects + J^T F = tau + w
 

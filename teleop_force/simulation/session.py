@@ -139,7 +139,7 @@ class SimulatedSession:
         return np.sqrt(np.mean(self.tracking_error_rad()[keep] ** 2, axis=0))
 
     def interchange_columns(self, with_force: bool = True) -> dict[str, np.ndarray]:
-        """Columns of the interchange CSV (CONVENTIONS.md): ``t, q1..q3, tau1..tau3[, f_*]``."""
+        """Return the columns ``t, q1..q3, tau1..tau3[, f_*]`` of docs/interchange_csv.md."""
         columns: dict[str, np.ndarray] = {"t": self.t_s}
         columns.update({f"q{j + 1}": self.q_rad[:, j] for j in range(3)})
         columns.update({f"tau{j + 1}": self.tau_nm[:, j] for j in range(3)})

@@ -18,7 +18,7 @@ so the friction is passive: ``tau_f . qd >= 0`` for any velocity. The defaults r
 paper's Table III: apparent Coulomb ~0.02 N m and viscous ~5e-3 N m s/rad on joints 2 and 3
 when they move together, rising to ~0.023 N m and ~1.1e-2 N m s/rad when they move opposite.
 
-Torques follow CONVENTIONS.md: ``tau_f`` is on the left of ``M qdd + ... + tau_f = tau``.
+Torques follow docs/conventions.md: ``tau_f`` is on the left of ``M qdd + ... + tau_f = tau``.
 """
 
 from __future__ import annotations

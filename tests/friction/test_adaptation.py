@@ -1,40 +1,13 @@
-import math
-import threading
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from threadpoolctl import threadpool_info, threadpool_limits
 
 from teleop_force.errors import ConfigurationError, DataError
-from teleop_force.friction import adaptation
-from teleop_force.friction.adaptation import (
-    LyapunovAdapter,
-    filtered_basis_normal_equations,
-    fit_batch,
-)
-from teleop_force.friction.wavelet_network import WaveletJointSpec, WaveletNetwork
+from teleop_force.friction.adaptation import LyapunovAdapter
+from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.lowpass import lowpass_batch
-
-FS_HZ = 1000.0
-
-
-def small_specs() -> list[WaveletJointSpec]:
-    one = WaveletJointSpec((0,), (-1.5,), (1.5,), -2, 0, 1e-4, 2e-4)
-    two = WaveletJointSpec((1, 2), (-1.5, -1.5), (1.5, 1.5), -2, 0, 1e-4, 2e-4)
-    return [one, two, two]
-
-
-def exciting_velocities(duration_s: float, seed: int = 0, amplitude: float = 1.0) -> tuple:
-    n = int(duration_s * FS_HZ)
-    t = np.arange(n) / FS_HZ
-    rng = np.random.default_rng(seed)
-    qd = np.zeros((n, 3))
-    for j in range(3):
-        for f in rng.uniform(0.2, 1.7, 4):
-            qd[:, j] += amplitude * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
-    return t, qd
+from tests.friction.wavelet_cases import FS_HZ, exciting_velocities, fixed_network, small_specs
 
 
 def filtered_plant(truth: WaveletNetwork, t: np.ndarray, qd: np.ndarray) -> tuple:
@@ -45,19 +18,6 @@ def filtered_plant(truth: WaveletNetwork, t: np.ndarray, qd: np.ndarray) -> tupl
     p_l = np.zeros_like(qd)
     p_l[1:] = np.cumsum(dt * (u_l[:-1] - friction_l[:-1]), axis=0)
     return p_l, u_l
-
-
-def fixed_network(seed: int, per_joint: int = 6) -> WaveletNetwork:
-    """Seeds plus some of their neighbours, random coefficients."""
-    net = WaveletNetwork(3, small_specs())
-    rng = np.random.default_rng(seed)
-    for j in range(3):
-        seeds = net.active_global_indices(j)
-        extra = net.pool.neighbours(seeds)
-        extra = extra[net.pool.m[extra] == 0][: per_joint - seeds.size]
-        idx = np.concatenate((seeds, extra))
-        net.set_structure(j, idx, rng.normal(0.0, 0.01, idx.size))
-    return net
 
 
 def test_adaptation_converges_to_true_coefficients():
@@ -191,76 +151,6 @@ def test_exclusion_is_gradual_and_only_when_decreasing():
     net.set_coefficients_at([seed], [0.1 * theta])
     zero_error_step(adapter, 100)
     assert net.is_active([seed])[0]
-
-
-def test_batch_fit_recovers_known_network():
-    truth = fixed_network(seed=4, per_joint=8)
-    t, qd = exciting_velocities(60.0, seed=4)
-    target_l = lowpass_batch(truth.torque(qd), t, 8.0)
-    net = fixed_network(seed=11, per_joint=8)
-    result = fit_batch(net, t, qd, target_l, wavelets="active", ridge=0.0, prune_tol_nm=0.0)
-    np.testing.assert_allclose(net.parameters, truth.parameters, rtol=1e-6, atol=1e-9)
-    assert np.all(result.relative_rms < 1e-6)
-    assert net.fallback is not None
-    assert net.coverage.total_samples(0) == np.count_nonzero(np.abs(qd[:, 0]) < 1.5)
-
-
-def _blas_threads() -> list[int]:
-    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-
-
-def test_batch_fit_runs_blas_on_one_thread_and_restores_the_count(monkeypatch):
-    """The groups' threads see one BLAS thread (OpenBLAS busy-waits); the count comes back."""
-    seen: list[tuple[str, list[int]]] = []
-    original = adaptation.filtered_basis_normal_equations
-
-    def recording(*args, **kwargs):
-        seen.append((threading.current_thread().name, _blas_threads()))
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(adaptation, "filtered_basis_normal_equations", recording)
-    truth = fixed_network(seed=4, per_joint=8)
-    t, qd = exciting_velocities(5.0, seed=4)
-    target_l = lowpass_batch(truth.torque(qd), t, 8.0)
-    with threadpool_limits(limits=2, user_api="blas"):
-        before = _blas_threads()
-        assert before and all(count == 2 for count in before), "NumPy's BLAS should be seen"
-        fit_batch(fixed_network(seed=11, per_joint=8), t, qd, target_l, wavelets="active")
-        assert _blas_threads() == before
-    assert len(seen) == 2  # the two pool geometries, each in its own worker thread
-    assert all(
-        name.startswith("fit_batch") and counts == [1] * len(before) for name, counts in seen
-    )
-
-
-def test_batch_fit_over_visited_pool_explains_the_target():
-    truth = fixed_network(seed=6, per_joint=8)
-    t, qd = exciting_velocities(30.0, seed=6)
-    target_l = lowpass_batch(truth.torque(qd), t, 8.0)
-    net = WaveletNetwork(3, small_specs())
-    result = fit_batch(net, t, qd, target_l, max_wavelets_per_joint=120)
-    assert all(0 < s <= 120 for s in result.sizes)
-    assert np.all(result.relative_rms < 0.01)
-    check = lowpass_batch(net.torque(qd), t, 8.0)
-    rel = np.sqrt(np.mean((check - target_l) ** 2, 0) / np.mean(target_l**2, 0))
-    np.testing.assert_allclose(rel, result.relative_rms, rtol=1e-3, atol=1e-6)
-
-
-def test_normal_equations_match_lowpass_batch_on_irregular_time():
-    net = fixed_network(seed=3)
-    rng = np.random.default_rng(0)
-    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, 3000))
-    qd = rng.uniform(-1.0, 1.0, (t.size, 3))
-    idx = net.active_global_indices(1)
-    target = rng.normal(size=(t.size, 2))
-    g, b, yy, rows = filtered_basis_normal_equations(
-        net, 1, idx, t, qd, target, 8.0, row_stride=3, chunk_samples=700
-    )
-    basis_l = lowpass_batch(net.basis_at(1, qd, idx), t, 8.0)[::3]
-    np.testing.assert_allclose(g, basis_l.T @ basis_l, rtol=1e-10)
-    np.testing.assert_allclose(b, basis_l.T @ target[::3], rtol=1e-10)
-    np.testing.assert_allclose(yy, np.sum(target[::3] ** 2, axis=0))
-    assert rows == math.ceil(t.size / 3)
 
 
 @pytest.mark.parametrize(

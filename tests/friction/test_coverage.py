@@ -7,7 +7,12 @@ from hypothesis import strategies as st
 
 from teleop_force.errors import ConfigurationError, ModelError
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
-from teleop_force.friction.coverage import CoverageConfig, CoverageMap
+from teleop_force.friction.coverage import (
+    CoverageConfig,
+    CoverageMap,
+    density_trust,
+    smoothed_density,
+)
 from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
 from teleop_force.identification.training_trajectory import (
     VelocityRegion,
@@ -156,3 +161,18 @@ def test_unreachable_region_is_a_configuration_error():
         VelocityRegion((1.0, 0.0), (0.0, 1.0), (0.0, 1.0))
     with pytest.raises(ConfigurationError):
         training_trajectory(VelocityRegion((-1, 1), (-1, 1), (-1, 1)), 10.0, margin_rad=2.0)
+
+
+def test_trust_is_the_ramp_of_the_smoothed_counts():
+    config = CoverageConfig(smoothing_cells=1.5, untrained_density=0.5, trained_density=9.0)
+    cov = CoverageMap(INPUTS, LO, HI, config)
+    cov.add(dense_training(20_000))
+    for j in range(cov.n_joints):
+        density = smoothed_density(cov.counts(j), config.smoothing_cells)
+        np.testing.assert_array_equal(density, cov.density_grid(j))
+        trust = density_trust(density, 0.5, 9.0)
+        assert trust.shape == density.shape
+        s = np.clip((density - 0.5) / 8.5, 0.0, 1.0)
+        np.testing.assert_allclose(trust, s * s * (3.0 - 2.0 * s), rtol=0, atol=1e-15)
+    counts = np.arange(12.0).reshape(3, 4)
+    assert smoothed_density(counts, 0.0) is counts

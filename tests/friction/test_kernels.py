@@ -9,8 +9,8 @@ import pytest
 from numba.core import caching
 
 from teleop_force.friction import kernels
-from teleop_force.friction.adaptation import (
-    LyapunovAdapter,
+from teleop_force.friction.adaptation import LyapunovAdapter
+from teleop_force.friction.batch_fit import (
     filtered_basis_normal_equations,
     fit_batch,
     wavelet_scores,

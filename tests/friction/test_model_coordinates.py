@@ -54,7 +54,9 @@ def test_mtm_parallel_rows_share_one_law_and_the_torque_is_t_transpose_f():
     assert model.n_axes == 8 and model.parameters.size == 16
     qd = _velocities(7)
     f_model = np.zeros((qd.shape[0], coupling.shape[0]))
-    f_model[:, list(model.axis_rows)] = model.axis_torque(qd)
+    w = qd @ model.axes.T
+    p = model.parameters.reshape(model.n_axes, 2)
+    f_model[:, list(model.axis_rows)] = np.sign(w) * p[:, 0] + w * p[:, 1]  # f(T qd) per axis
     np.testing.assert_allclose(model.torque(qd), f_model @ coupling, rtol=0, atol=1e-12)
     # a law on the top link instead is the same torque: Coulomb and viscous are odd
     top_first = ModelCoordinateFriction(coupling[[0, 1, 8, 3, 4, 5, 6, 7]], model.parameters)
@@ -70,6 +72,22 @@ def test_regressor_times_parameters_is_the_torque():
         np.testing.assert_allclose(
             regressor @ model.parameters, model.torque(qd), rtol=0, atol=1e-12
         )
+
+
+def test_regressor_columns_are_the_terms_basis_through_the_coupling():
+    model = _random_model(mtm_model_coupling())
+    qd = _velocities(7)
+    qd[:5, 2] = qd[:5, 1]  # the elbow axis at rest
+    w = qd @ model.axes.T
+    regressor = model.regressor(qd)
+    for a in range(model.n_axes):
+        columns = np.stack((np.sign(w[:, a]), w[:, a]), axis=1)  # [sgn w_a, w_a]
+        for j in range(model.n_joints):
+            got = regressor[:, j, model.axis_slice(a)]
+            np.testing.assert_allclose(got, model.axes[a, j] * columns, rtol=1e-14, atol=1e-15)
+    np.testing.assert_array_equal(regressor[:5, :, model.axis_slice(2)], 0.0)
+    with pytest.raises(ModelError, match="expected 7 velocities"):
+        model.regressor(qd[:, :6])
 
 
 def test_identity_coupling_is_the_plain_coulomb_viscous_model():

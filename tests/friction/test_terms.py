@@ -15,6 +15,7 @@ from teleop_force.friction.wavelet_network import (
     WaveletNetwork,
     mexican_hat,
     psi_block,
+    wavelet_amplitude,
 )
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig
@@ -78,7 +79,9 @@ def test_model_coordinate_friction_batch_streaming_and_reference_agree():
     coupling = np.array([[1.0, 0, 0], [0, 1, 0], [0, -1, 1], [0, 0.6697, 1]])
     model = ModelCoordinateFriction(coupling, rng.normal(size=8))
     qd = _velocities(4)
-    reference = model.axis_torque(qd) @ model.axes
+    w = qd @ model.axes.T
+    p = model.parameters.reshape(model.n_axes, 2)
+    reference = (np.sign(w) * p[:, 0] + w * p[:, 1]) @ model.axes
     np.testing.assert_allclose(model.torque(qd), reference, rtol=0, atol=1e-13)
     np.testing.assert_allclose(_one_sample(model, qd), model.torque(qd), rtol=0, atol=ATOL)
 
@@ -206,3 +209,24 @@ def test_coverage_trust_inside_outside_and_at_the_edges(seed):
     finite = points[:-2]
     got = np.array([model_terms(0.0, zero, p.tolist(), zero)[1] for p in finite])
     np.testing.assert_allclose(got, trust[:-2], rtol=0, atol=ATOL)
+
+
+def test_coverage_trust_values_is_the_scalar_ramp_over_an_array():
+    rng = np.random.default_rng(6)
+    density = np.concatenate([rng.uniform(-5.0, 30.0, 500), [1.0, 20.0, np.nan, np.inf]])
+    got = terms.coverage_trust_values(density, 1.0, 20.0)
+    np.testing.assert_array_equal(got, [terms.coverage_trust(v, 1.0, 20.0) for v in density])
+    s = np.clip((density - 1.0) / 19.0, 0.0, 1.0)
+    np.testing.assert_allclose(got, s * s * (3.0 - 2.0 * s), rtol=0, atol=1e-15)
+    assert got[500] == 0.0 and got[501] == 1.0 and np.isnan(got[502]) and got[503] == 1.0
+
+
+def test_wavelet_amplitude_of_ints_and_arrays_agree():
+    d = np.array([1, 2, 2, 3], dtype=np.int64)
+    m = np.array([-5, 0, 3, -2], dtype=np.int64)
+    for a0 in (2.0, 1.7):
+        arrays = wavelet_amplitude(a0, d, m)
+        scalars = [wavelet_amplitude(a0, int(di), int(mi)) for di, mi in zip(d, m, strict=True)]
+        np.testing.assert_array_equal(arrays, scalars)
+        np.testing.assert_allclose(arrays, a0 ** (-d * m / 2.0), rtol=1e-15)
+    assert wavelet_amplitude(2.0, 2, -3) == 8.0

@@ -10,11 +10,13 @@ import pytest
 
 from teleop_force.errors import ModelError
 from teleop_force.identification.effect_terms import (
+    SHAPE_CODES,
     EffectModulation,
     EffectShape,
     EffectVariable,
     VariableKind,
     add_effects_torque_into,
+    shape_basis_into,
 )
 from teleop_force.identification.effects import (
     BasisSpec,
@@ -161,3 +163,14 @@ def test_shapes_and_modulations_are_enums_with_the_file_strings():
         BasisSpec(0, "t", "cubic")
     with pytest.raises(ModelError):
         BasisSpec(0, "t", "linear", "negative")
+
+
+def test_every_shape_has_its_own_branch_and_an_unknown_code_gives_nan():
+    parameters = np.array([0.5, 1.5, 2.0])
+    for shape, code in SHAPE_CODES.items():
+        out = np.full(8, -7.0)
+        written = shape_basis_into(code, 0.3, 2, parameters, out, 1)
+        assert np.all(np.isfinite(out[1 : 1 + written])), shape
+    out = np.zeros(3)
+    shape_basis_into(max(SHAPE_CODES.values()) + 1, 0.3, 2, parameters, out, 0)
+    assert np.isnan(out[:2]).all()

@@ -185,3 +185,67 @@ def test_stats_report_the_process_memory_trimmer(session, model):
     assert memory["available"] and memory["period_s"] == 0.05
     assert memory["rss_mb"] > 10.0 and memory["released_mb"] >= 0.0
     assert ForceService(session, model, ServiceConfig(device=DEVICE)).stats()["memory"] is None
+
+
+def test_stats_keep_their_keys_and_the_old_attributes_read_the_parts(session, model):
+    service = ForceService(session, model, ServiceConfig(device=DEVICE))
+    stats = service.stats()
+    assert list(stats) == [
+        "role", "device", "model", "uptime_s", "joint_states", "estimates", "malformed",
+        "latency_ms", "processing_ms", "on_ground_fraction", "on_ground_fraction_per_joint",
+        "adaptation", "recording", "last_recording", "memory", "controls", "last_estimate",
+    ]  # fmt: skip
+    assert list(stats["model"]) == ["path", "robot", "friction", "loads"]
+    assert list(stats["joint_states"]) == [
+        "received", "lost", "restarts", "duplicates", "stream_restarts", "backlog",
+        "overflow_dropped", "rate_hz", "mean_rate_hz",
+    ]  # fmt: skip
+    assert list(stats["estimates"]) == ["published", "singular", "errors", "last_error"]
+    assert list(stats["malformed"]) == ["dropped", "by_key", "last"]
+    assert list(stats["adaptation"]) == ["enabled", "available", "note", "samples"]
+    assert list(stats["controls"]) == ["requests", "refused", "last_refusal"]
+    assert stats["on_ground_fraction"] is None and stats["last_estimate"] is None
+    assert stats["recording"] is None and stats["last_recording"] is None
+    # The attributes other code reads are the parts' own.
+    assert service.seqs is service.joint_states.seqs
+    assert service.malformed_by_key is service.malformed.by_key
+    assert (service.published, service.estimate_errors) == (0, 0)
+    assert (service.adapting, service.adaptation, service.recorder) == (False, None, None)
+    assert service.adaptation_note == service.adaptation_state.note != ""
+    assert service.last_recording is None
+
+
+def test_the_services_malformed_table_is_capped(session, model):
+    from teleop_force.service.force_service import MAX_COUNTED_KEYS, OTHER_KEYS
+
+    service = ForceService(session, model, ServiceConfig(device=DEVICE))
+    for k in range(2 * MAX_COUNTED_KEYS):
+        service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
+    malformed = service.stats()["malformed"]
+    assert malformed["dropped"] == 2 * MAX_COUNTED_KEYS
+    assert len(malformed["by_key"]) == MAX_COUNTED_KEYS + 1
+    assert malformed["by_key"][OTHER_KEYS] == MAX_COUNTED_KEYS
+    assert malformed["last"] == f"{OTHER_KEYS}: bad"
+
+
+def test_estimate_seqs_count_on_across_stream_restarts(session, model):
+    service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
+    got, sub = collect(session, keys.estimated_cf(DEVICE))
+    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    try:
+        for js in joint_states(30) + joint_states(30, t0_ns=1_800_000_000_000_000_000):
+            pub.put(js.encode())
+        pub.put(joint_states(1, seq0=29, t0_ns=1_800_000_000_029_000_000)[0].encode())  # dup
+        wait_until(lambda: len(got) == 60)
+        time.sleep(0.05)
+        stats = service.stats()
+    finally:
+        sub.undeclare()
+        pub.undeclare()
+        service.close()
+    assert [e.seq for e in got] == list(range(60))
+    assert [e.source_seq for e in got] == [*range(30), *range(30)]
+    assert (
+        stats["joint_states"]["duplicates"] == 1 and stats["joint_states"]["stream_restarts"] == 1
+    )
+    assert stats["last_estimate"]["source_seq"] == 29 and len(got) == 60
