@@ -30,6 +30,7 @@ from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     coverage_trust_into,
     linear_friction_torque_into,
+    trust_blend,
     wavelet_network_torque_into,
 )
 from teleop_force.friction.wavelet_network import WaveletNetwork
@@ -88,8 +89,7 @@ def model_terms_into(
         if grid_ints.shape[0] > 0:
             coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
         for j in range(n):
-            w = weight[j]
-            other[j] = w * network[j] + (1.0 - w) * other[j]
+            other[j] = trust_blend(weight[j], network[j], other[j])
     for j in range(n):
         other[j] += offsets[j]
     add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)

@@ -287,6 +287,24 @@ def coverage_trust(density: float, untrained: float, trained: float) -> float:  
 
 
 @njit_cached()
+def trust_blend(w: float, trained: float, fallback: float) -> float:  # pragma: no cover
+    """Coverage-aware torque ``w trained + (1 - w) fallback`` at trust ``w`` in [0, 1]."""
+    return w * trained + (1.0 - w) * fallback
+
+
+@njit_cached()
+def trust_blend_values(
+    w: np.ndarray, trained: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`trust_blend` of every entry of three (N, n) arrays."""
+    out = np.empty(w.shape)
+    for k in range(w.shape[0]):
+        for j in range(w.shape[1]):
+            out[k, j] = trust_blend(w[k, j], trained[k, j], fallback[k, j])
+    return out
+
+
+@njit_cached()
 def grid_density_batch(
     qd: np.ndarray,
     inputs: np.ndarray,

@@ -58,6 +58,7 @@ from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     mexican_hat_values,
     pool_wavelets,
+    trust_blend_values,
     wavelet_block,
     wavelet_network_torque_into,
 )
@@ -834,7 +835,11 @@ class WaveletNetwork(FrictionModel):
         single = qd.ndim == 1
         batch = np.atleast_2d(qd)
         w = self.coverage_weight(batch)
-        out = w * self.torque(batch) + (1.0 - w) * self.fallback.torque(batch)
+        out = trust_blend_values(
+            np.ascontiguousarray(w, dtype=float),
+            np.ascontiguousarray(self.torque(batch), dtype=float),
+            np.ascontiguousarray(self.fallback.torque(batch), dtype=float),
+        )
         return out[0] if single else out
 
     # -- serialisation -----------------------------------------------------------------------

@@ -260,7 +260,7 @@ def certificates(tmp_path_factory) -> dict[str, Path]:
 
 def tls_config(path: Path, certs: dict[str, Path], *, ca: str = "ca", mtls: bool = False,
                client_cert: bool = True) -> Path:  # fmt: skip
-    """A Zenoh config file with the keys documented in ``zenoh_session.py``."""
+    """A Zenoh config file with the keys documented in ``teleop_force/transport/session.py``."""
     tls = {
         "root_ca_certificate": str(certs[ca]),
         "listen_private_key": str(certs["peer-key"]),
