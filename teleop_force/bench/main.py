@@ -27,14 +27,19 @@ import platform
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from teleop_force.bench.measure import rounded, stopwatch
+
+if TYPE_CHECKING:
+    from teleop_force.bench.estimation import StepTiming
+    from teleop_force.identification.dynamic_model import DynamicModel
 
 #: Wavelets per joint network of the scaling figures.
 WAVELET_SETTINGS = (100, 300, 1000)
@@ -146,21 +151,75 @@ def _goals(result: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+@dataclass(frozen=True)
+class _BenchModel:
+    """The identification's model (the benchmark model of the other figures), as saved.
+
+    Attributes:
+        model: The identified model with the found effects added.
+        path: Where it is saved (the replay and the demo read it there).
+        figures: The identification figures and the model's wavelet and effect counts.
+
+    """
+
+    model: DynamicModel
+    path: Path
+    figures: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class _WaveletVariant:
+    """The benchmark model with another number of wavelets per joint network.
+
+    Attributes:
+        setting: Wavelets per joint asked for, as the figures' key (``"300"``).
+        path: Where the variant is saved.
+        counts: Wavelets per joint network it actually has.
+        timing: Its estimation step (``None`` when the estimation figures are off).
+
+    """
+
+    setting: str
+    path: Path
+    counts: list[int]
+    timing: StepTiming | None
+
+
 def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     """Measure every figure (see the module docstring); return them as one JSON-ready dict."""
-    from teleop_force.bench.data import (
-        MULTISINE_PERIOD_S,
-        SAMPLE_INTERVAL_S,
-        identification_recordings,
-        palpation_arrays,
-        wavelet_counts,
-        with_found_effects,
-        with_wavelets,
-    )
-    from teleop_force.bench.estimation import time_estimation_step
-    from teleop_force.bench.identification import time_identification
+    result = _run_header(options)
+    with _work_folder(options.work_dir) as work_dir:
+        with stopwatch() as total:
+            # 2. identification first: its model is the benchmark model of the other figures
+            bench_model = _identify(options, work_dir, log)
+            result.update(bench_model.figures)
+            # 1. the estimation step, and its growth with the wavelets
+            palpation = _palpation(options, log)
+            step = _time_main_step(options, bench_model.model, palpation, log)
+            variants = _wavelet_variants(options, bench_model.model, palpation, work_dir, log)
+            result.update(_estimation_figures(step, variants))
+            result["wavelets_per_joint_by_setting"] = {
+                v.setting: v.counts for v in variants
+            } or None
+            # 4-5. replay through the service, its memory, growth with length and wavelets
+            result.update(
+                _replay_part(options, palpation, bench_model.path, variants, work_dir, log)
+            )
+            # 3. messaging (the demo), the service's memory in it
+            result.update(_messaging_part(options, bench_model.path, log))
+            result.update(_service_memory(result))
+        result["bench_wall_s"] = round(total.wall_s, 2)
+        result["bench_cpu_s"] = round(total.cpu_s, 2)
+        result["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+        result["goals"] = _goals(result)
+        if options.work_dir is not None:
+            result["work_dir"] = str(work_dir)
+        return result
 
-    result: dict[str, Any] = {
+
+def _run_header(options: BenchOptions) -> dict[str, Any]:
+    """Describe the run: when, where, with what, which parts."""
+    return {
         "bench": "teleop-force",
         "quick": options.quick,
         "date_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -169,131 +228,193 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
         "versions": _versions(),
         "parts": _parts(options),
     }
-    work = options.work_dir
-    temporary = work is None
-    work_dir = Path(tempfile.mkdtemp(prefix="teleop-bench-")) if work is None else Path(work)
-    work_dir.mkdir(parents=True, exist_ok=True)
+
+
+@contextmanager
+def _work_folder(work: Path | None) -> Iterator[Path]:
+    """Yield ``work`` (created), or a temporary folder removed afterwards when it is ``None``."""
+    folder = Path(tempfile.mkdtemp(prefix="teleop-bench-")) if work is None else Path(work)
+    folder.mkdir(parents=True, exist_ok=True)
     try:
-        with stopwatch() as total:
-            # -- 2. identification (its model is the benchmark model of the other figures)
-            per_recording = options.identify_samples // 2
-            needed_s = per_recording * SAMPLE_INTERVAL_S
-            simulated_s = (
-                needed_s
-                if needed_s <= options.identify_simulated_s
-                else max(options.identify_simulated_s, 2 * MULTISINE_PERIOD_S)
-            )
-            log(f"simulating 2 x {simulated_s:g} s -> 2 x {per_recording} samples")
-            recordings = identification_recordings(simulated_s, per_recording, options.seed)
-            ident = time_identification(recordings, log)
-            result.update(ident.figures())
-            assert ident.model is not None
-            model = with_found_effects(ident.model)
-            del recordings, ident
-            model_path = work_dir / "bench_model.json"
-            model.save(model_path)
-            result["model_wavelets_per_joint"] = wavelet_counts(model)
-            result["model_found_effects"] = len(model.effects)
-
-            # -- 1. estimation step, and its growth with the wavelets
-            palpation: dict[str, np.ndarray] = {}
-            if options.estimation or options.replay:
-                longest = max(options.replay_lengths_s) if options.replay else 0.0
-                duration = max(longest, options.replay_wavelets_length_s, 1.0)
-                duration = max(duration, (options.estimate_samples + 600) / 1000.0)
-                log(f"simulating a {duration:g} s palpation")
-                palpation = palpation_arrays(duration, options.seed)
-            result.update(dict.fromkeys(_ESTIMATION_KEYS))
-            if options.estimation:
-                log(f"estimation step: {options.estimate_samples} timed updates")
-                step = time_estimation_step(
-                    model, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
-                    options.estimate_samples,
-                )  # fmt: skip
-                result.update(
-                    estimate_step_p50_us=rounded(step.p50_us),
-                    estimate_step_p99_us=rounded(step.p99_us),
-                    estimate_step_max_us=rounded(step.max_us),
-                    estimate_step_mean_us=rounded(step.mean_us),
-                    estimate_step_cpu_p50_us=rounded(step.cpu_p50_us),
-                    estimate_step_cpu_p99_us=rounded(step.cpu_p99_us),
-                    rnea_us=rounded(step.rnea_us, 4),
-                    estimate_step_vs_rnea=rounded(step.vs_rnea, 2),
-                    estimate_step_p99_vs_rnea=rounded(step.p99_vs_rnea, 2),
-                    estimate_samples=step.samples,
-                    estimate_timer_overhead_us=rounded(step.timer_overhead_us, 4),
-                )
-            variants: dict[str, Path] = {}
-            by_p50, by_p99, by_cpu_p99, by_ratio, by_counts = {}, {}, {}, {}, {}
-            models_needed = options.estimation or options.replay
-            for per_joint in options.wavelet_settings if models_needed else ():
-                variant = with_wavelets(model, per_joint, options.seed)
-                key = str(per_joint)
-                variants[key] = work_dir / f"bench_model_{per_joint}.json"
-                variant.save(variants[key])
-                by_counts[key] = wavelet_counts(variant)
-                if not options.estimation:
-                    continue
-                timing = time_estimation_step(
-                    variant, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
-                    max(500, options.estimate_samples // 2),
-                )  # fmt: skip
-                by_p50[key] = rounded(timing.p50_us)
-                by_p99[key] = rounded(timing.p99_us)
-                by_cpu_p99[key] = rounded(timing.cpu_p99_us)
-                by_ratio[key] = rounded(timing.vs_rnea, 2)
-                log(f"  {by_counts[key]} wavelets: p50 {timing.p50_us:.1f} us")
-            if options.estimation:
-                result.update(
-                    estimate_step_p50_us_by_wavelets=by_p50,
-                    estimate_step_p99_us_by_wavelets=by_p99,
-                    estimate_step_cpu_p99_us_by_wavelets=by_cpu_p99,
-                    estimate_step_vs_rnea_by_wavelets=by_ratio,
-                )
-            result["wavelets_per_joint_by_setting"] = by_counts or None
-
-            # -- 4-5. replay through the service, its memory, growth with length and wavelets
-            result.update(dict.fromkeys(_REPLAY_KEYS))
-            if options.replay:
-                try:
-                    result.update(
-                        _replay_figures(options, palpation, model_path, variants, work_dir, log)
-                    )
-                except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
-                    log(f"replay figures failed: {exc}")
-                    result["replay_error"] = str(exc)
-            # -- 3. messaging (the demo), the service's memory in it
-            result.update(_messaging_skipped())
-            if options.messaging:
-                try:
-                    result.update(_messaging_figures(options, model_path, log))
-                except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
-                    log(f"messaging figures failed: {exc}")
-                    result["messaging_error"] = str(exc)
-            demo_rss = result.get("service_peak_rss_mb_demo")
-            replay_rss = result.get("replay_peak_rss_mb")
-            result["service_peak_rss_mb"] = demo_rss if demo_rss is not None else replay_rss
-            result["service_peak_rss_source"] = (
-                "demo service process" if demo_rss is not None
-                else ("replay worker (service in-process)" if replay_rss is not None else None)
-            )  # fmt: skip
-        result["bench_wall_s"] = round(total.wall_s, 2)
-        result["bench_cpu_s"] = round(total.cpu_s, 2)
-        result["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
-        result["goals"] = _goals(result)
-        if not temporary:
-            result["work_dir"] = str(work_dir)
-        return result
+        yield folder
     finally:
-        if temporary:
-            shutil.rmtree(work_dir, ignore_errors=True)
+        if work is None:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _identify(options: BenchOptions, work_dir: Path, log: Callable[[str], None]) -> _BenchModel:
+    """Time the identification on simulated recordings; save its model with found effects."""
+    from teleop_force.bench.data import (
+        MULTISINE_PERIOD_S,
+        SAMPLE_INTERVAL_S,
+        identification_recordings,
+        wavelet_counts,
+        with_found_effects,
+    )
+    from teleop_force.bench.identification import time_identification
+
+    per_recording = options.identify_samples // 2
+    needed_s = per_recording * SAMPLE_INTERVAL_S
+    simulated_s = (
+        needed_s
+        if needed_s <= options.identify_simulated_s
+        else max(options.identify_simulated_s, 2 * MULTISINE_PERIOD_S)
+    )
+    log(f"simulating 2 x {simulated_s:g} s -> 2 x {per_recording} samples")
+    recordings = identification_recordings(simulated_s, per_recording, options.seed)
+    ident = time_identification(recordings, log)
+    figures = ident.figures()
+    assert ident.model is not None
+    model = with_found_effects(ident.model)
+    path = work_dir / "bench_model.json"
+    model.save(path)
+    figures["model_wavelets_per_joint"] = wavelet_counts(model)
+    figures["model_found_effects"] = len(model.effects)
+    return _BenchModel(model, path, figures)
+
+
+def _palpation(options: BenchOptions, log: Callable[[str], None]) -> dict[str, np.ndarray]:
+    """Simulate the palpation the estimation and replay figures use (empty if neither runs)."""
+    from teleop_force.bench.data import palpation_arrays
+
+    if not (options.estimation or options.replay):
+        return {}
+    longest = max(options.replay_lengths_s) if options.replay else 0.0
+    duration = max(longest, options.replay_wavelets_length_s, 1.0)
+    duration = max(duration, (options.estimate_samples + 600) / 1000.0)
+    log(f"simulating a {duration:g} s palpation")
+    return palpation_arrays(duration, options.seed)
+
+
+def _time_main_step(
+    options: BenchOptions,
+    model: DynamicModel,
+    palpation: dict[str, np.ndarray],
+    log: Callable[[str], None],
+) -> StepTiming | None:
+    """Time the estimation step of the benchmark model (``None`` when it is off)."""
+    from teleop_force.bench.estimation import time_estimation_step
+
+    if not options.estimation:
+        return None
+    log(f"estimation step: {options.estimate_samples} timed updates")
+    return time_estimation_step(
+        model, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
+        options.estimate_samples,
+    )  # fmt: skip
+
+
+def _wavelet_variants(
+    options: BenchOptions,
+    model: DynamicModel,
+    palpation: dict[str, np.ndarray],
+    work_dir: Path,
+    log: Callable[[str], None],
+) -> tuple[_WaveletVariant, ...]:
+    """Save the model at each wavelet setting; time its estimation step if that part runs."""
+    from teleop_force.bench.data import wavelet_counts, with_wavelets
+    from teleop_force.bench.estimation import time_estimation_step
+
+    if not (options.estimation or options.replay):
+        return ()
+    variants = []
+    for per_joint in options.wavelet_settings:
+        variant = with_wavelets(model, per_joint, options.seed)
+        path = work_dir / f"bench_model_{per_joint}.json"
+        variant.save(path)
+        counts = wavelet_counts(variant)
+        timing = None
+        if options.estimation:
+            timing = time_estimation_step(
+                variant, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
+                max(500, options.estimate_samples // 2),
+            )  # fmt: skip
+            log(f"  {counts} wavelets: p50 {timing.p50_us:.1f} us")
+        variants.append(_WaveletVariant(str(per_joint), path, counts, timing))
+    return tuple(variants)
+
+
+def _estimation_figures(
+    step: StepTiming | None, variants: Sequence[_WaveletVariant]
+) -> dict[str, Any]:
+    """Return the estimation figures (all ``None`` when the step was not timed)."""
+    figures: dict[str, Any] = dict.fromkeys(_ESTIMATION_KEYS)
+    if step is None:
+        return figures
+    figures.update(
+        estimate_step_p50_us=rounded(step.p50_us),
+        estimate_step_p99_us=rounded(step.p99_us),
+        estimate_step_max_us=rounded(step.max_us),
+        estimate_step_mean_us=rounded(step.mean_us),
+        estimate_step_cpu_p50_us=rounded(step.cpu_p50_us),
+        estimate_step_cpu_p99_us=rounded(step.cpu_p99_us),
+        rnea_us=rounded(step.rnea_us, 4),
+        estimate_step_vs_rnea=rounded(step.vs_rnea, 2),
+        estimate_step_p99_vs_rnea=rounded(step.p99_vs_rnea, 2),
+        estimate_samples=step.samples,
+        estimate_timer_overhead_us=rounded(step.timer_overhead_us, 4),
+    )
+    timed = [(v.setting, v.timing) for v in variants if v.timing is not None]
+    figures.update(
+        estimate_step_p50_us_by_wavelets={k: rounded(t.p50_us) for k, t in timed},
+        estimate_step_p99_us_by_wavelets={k: rounded(t.p99_us) for k, t in timed},
+        estimate_step_cpu_p99_us_by_wavelets={k: rounded(t.cpu_p99_us) for k, t in timed},
+        estimate_step_vs_rnea_by_wavelets={k: rounded(t.vs_rnea, 2) for k, t in timed},
+    )
+    return figures
+
+
+def _replay_part(
+    options: BenchOptions,
+    palpation: dict[str, np.ndarray],
+    model_path: Path,
+    variants: Sequence[_WaveletVariant],
+    work_dir: Path,
+    log: Callable[[str], None],
+) -> dict[str, Any]:
+    """Measure the replay figures (``None`` when off; ``replay_error`` on failure)."""
+    figures: dict[str, Any] = dict.fromkeys(_REPLAY_KEYS)
+    if options.replay:
+        try:
+            figures.update(_replay_figures(options, palpation, model_path, variants, work_dir, log))
+        except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
+            log(f"replay figures failed: {exc}")
+            figures["replay_error"] = str(exc)
+    return figures
+
+
+def _messaging_part(
+    options: BenchOptions, model_path: Path, log: Callable[[str], None]
+) -> dict[str, Any]:
+    """Measure the messaging figures (``None`` when off; ``messaging_error`` on failure)."""
+    figures = _messaging_skipped()
+    if options.messaging:
+        try:
+            figures.update(_messaging_figures(options, model_path, log))
+        except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
+            log(f"messaging figures failed: {exc}")
+            figures["messaging_error"] = str(exc)
+    return figures
+
+
+def _service_memory(result: dict[str, Any]) -> dict[str, Any]:
+    """Pick the service's peak memory: the demo's service process, else the replay worker."""
+    demo_rss = result.get("service_peak_rss_mb_demo")
+    replay_rss = result.get("replay_peak_rss_mb")
+    return {
+        "service_peak_rss_mb": demo_rss if demo_rss is not None else replay_rss,
+        "service_peak_rss_source": (
+            "demo service process" if demo_rss is not None
+            else ("replay worker (service in-process)" if replay_rss is not None else None)
+        ),
+    }  # fmt: skip
 
 
 def _replay_figures(
     options: BenchOptions,
     palpation: dict[str, np.ndarray],
     model_path: Path,
-    variants: dict[str, Path],
+    variants: Sequence[_WaveletVariant],
     work_dir: Path,
     log: Callable[[str], None],
 ) -> dict[str, Any]:
@@ -310,7 +431,7 @@ def _replay_figures(
 
     jobs = [(session(length), model_path) for length in options.replay_lengths_s]
     wavelet_session = session(options.replay_wavelets_length_s)
-    jobs += [(wavelet_session, variants[key]) for key in variants]
+    jobs += [(wavelet_session, variant.path) for variant in variants]
     log(f"replay: {len(jobs)} sessions through the service, as fast as possible")
     runs = run_workers(jobs, isolated=options.isolated_replays)
     by_length = runs[: len(options.replay_lengths_s)]
@@ -320,6 +441,7 @@ def _replay_figures(
         log(f"  {Path(run['session']).name} / {Path(run['model']).name}: x{run['x_realtime']}, "
             f"{run['peak_rss_mb']} MB")  # fmt: skip
     lengths = [f"{length:g}" for length in options.replay_lengths_s]
+    settings = [variant.setting for variant in variants]
     return {
         "replay_x_realtime": longest["x_realtime"],
         "replay_recorded_s": longest["recorded_span_s"],
@@ -343,10 +465,10 @@ def _replay_figures(
             k: r["peak_rss_mb"] for k, r in zip(lengths, by_length, strict=True)
         },
         "replay_x_realtime_by_wavelets": {
-            k: r["x_realtime"] for k, r in zip(variants, by_wavelets, strict=True)
+            k: r["x_realtime"] for k, r in zip(settings, by_wavelets, strict=True)
         },
         "replay_peak_rss_mb_by_wavelets": {
-            k: r["peak_rss_mb"] for k, r in zip(variants, by_wavelets, strict=True)
+            k: r["peak_rss_mb"] for k, r in zip(settings, by_wavelets, strict=True)
         },
         "replay_wavelets_session_s": options.replay_wavelets_length_s,
         "replay_isolated_workers": options.isolated_replays,

@@ -18,14 +18,19 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from teleop_force.errors import DataError, TeleopForceError
 from teleop_force.identification.effects import describe_reach
+
+if TYPE_CHECKING:
+    from teleop_force.estimation.teststand import TeststandModel, TeststandOptions
+    from teleop_force.io.interchange_csv import Recording
+    from teleop_force.robots.description import RobotDescription
 
 #: The data authors' figure: relative motor-torque error below this for MTM joints 1-3.
 MTM_PUBLISHED_RELATIVE_ERROR = 0.163
@@ -266,97 +271,72 @@ def _plot_mtm(rows: dict[str, dict[str, Any]], joint_names: Sequence[str], out: 
 # --------------------------------------------------------------------------- test stand
 
 
-def teststand_study(folder: Path, out: Path, log: Callable[[str], None]) -> dict[str, Any]:
-    """Foot force from joint torques vs the ATI sensor; the error broken down."""
-    from teleop_force.estimation.estimator import ForceEstimator
-    from teleop_force.estimation.teststand import (
-        TeststandModel,
-        TeststandOptions,
-        estimate_forces,
-        free_phase_mask,
-        identify_teststand,
-        nominal_teststand_model,
-    )
-    from teleop_force.identification.dynamic_model import DynamicModel
-    from teleop_force.identification.filtered_regressor import FilterConfig
-    from teleop_force.io.teststand_logs import read_teststand_folder
-    from teleop_force.robots.teststand import teststand_description
+@dataclass(frozen=True)
+class _TeststandData:
+    """The test stand's log (commanded torques) and what every estimate is judged against.
 
-    log_measured = read_teststand_folder(folder, "target")
-    log(log_measured.note())
-    recording = log_measured.recording
-    truth = recording.f_tip_in_base_n
-    if truth is None or log_measured.lab_estimate_n is None:
-        raise DataError(
-            "the test-stand folder needs the ATI force and the lab's estimate", path=folder
-        )
-    description = teststand_description()
-    options = TeststandOptions()
-    contact = ~free_phase_mask(recording, options.free_force_n, 0.0)
+    Attributes:
+        note: The log's one-line description.
+        recording: The aligned log.
+        truth: The ATI sensor's force (negated: the foot's force on the ground) [N].
+        lab_estimate: The lab's online estimate of the same force [N].
+        contact: Samples in contact (outside the free phase).
 
-    def figures(forces: np.ndarray) -> dict[str, float]:
-        error = forces - truth
+    """
+
+    note: str
+    recording: Recording
+    truth: np.ndarray
+    lab_estimate: np.ndarray
+    contact: np.ndarray
+
+    def errors(self, forces: np.ndarray) -> dict[str, float]:
+        """Return the RMS errors of ``forces`` against the sensor: f_z, f_x, f_z in contact."""
+        error = forces - self.truth
         return {
             "fz_rms_n": _rms(error[:, 2]),
             "fx_rms_n": _rms(error[:, 0]),
-            "fz_rms_contact_n": _rms(error[contact, 2]),
+            "fz_rms_contact_n": _rms(error[self.contact, 2]),
         }
 
-    rows: dict[str, dict[str, float]] = {
-        "lab estimator (baseline)": figures(log_measured.lab_estimate_n)
-    }
-    nominal = nominal_teststand_model(description, options)
-    rows["URDF rigid body only"] = figures(estimate_forces(nominal, recording, description, False))
-    with_slider = TeststandModel(nominal.model, True, 0)
-    rows["URDF rigid body + slider term"] = figures(
-        estimate_forces(with_slider, recording, description, False)
-    )
-    identified = identify_teststand(recording, description, options)
-    rows["identified rigid body, no friction"] = figures(
-        estimate_forces(identified, recording, description, False)
-    )
-    best_forces = estimate_forces(identified, recording, description)
-    rows["identified rigid body + friction"] = figures(best_forces)
-    slider = TeststandModel(identified.model, True, identified.free_samples)
-    slider_forces = estimate_forces(slider, recording, description)
-    rows["identified + friction + slider term"] = figures(slider_forces)
-    slider_term_rms_n = _rms(slider_forces[:, 2] - best_forces[:, 2])
-    nominal_friction = TeststandModel(
-        replace(nominal.model, friction=identified.model.friction), False, 0
-    )
-    rows["URDF rigid body + identified friction"] = figures(
-        estimate_forces(nominal_friction, recording, description)
-    )
-    log_other = read_teststand_folder(folder, "measured")
-    identified_other = identify_teststand(log_other.recording, description, options)
-    rows["identified + friction, measured torques"] = figures(
-        estimate_forces(identified_other, log_other.recording, description)
-    )
-    rows["streaming ForceEstimator (same model)"] = figures(
-        _stream(ForceEstimator(identified.model), recording)
-    )
-    sensitivity = {}
-    for cutoff in (20.0, 40.0):
-        for weight in (0.1, 0.3, 1.0):
-            variant = TeststandOptions(
-                filter=FilterConfig(cutoff_hz=cutoff, velocity_cutoff_hz=5 * cutoff, warmup_s=0.05),
-                prior_weight=weight,
-            )
-            model = identify_teststand(recording, description, variant)
-            sensitivity[f"{cutoff:g} Hz, prior {weight:g}"] = figures(
-                estimate_forces(model, recording, description)
-            )
-    saved = out / "teststand_model.json"
-    identified.model.save(saved)
-    DynamicModel.load(saved)  # the saved model reads back
-    _plot_teststand(recording.t_s, truth, log_measured.lab_estimate_n, best_forces, out)
+
+@dataclass(frozen=True)
+class _TeststandRows:
+    """The estimates' errors, and the identified model they single out.
+
+    Attributes:
+        rows: Errors per estimate (see :meth:`_TeststandData.errors`), in the report's order.
+        identified: The model identified on the commanded torques.
+        best_forces: Its forces with friction, the headline estimate [N].
+        slider_term_rms_n: RMS of the slider term's contribution to f_z [N].
+
+    """
+
+    rows: dict[str, dict[str, float]]
+    identified: TeststandModel
+    best_forces: np.ndarray
+    slider_term_rms_n: float
+
+
+def teststand_study(folder: Path, out: Path, log: Callable[[str], None]) -> dict[str, Any]:
+    """Foot force from joint torques vs the ATI sensor; the error broken down."""
+    from teleop_force.estimation.teststand import TeststandOptions
+    from teleop_force.robots.teststand import teststand_description
+
+    options = TeststandOptions()
+    data = _read_teststand(folder, options, log)
+    description = teststand_description()
+    found = _teststand_rows(folder, data, description, options)
+    sensitivity = _teststand_sensitivity(data, description)
+    _save_teststand_model(found.identified, out)
+    _plot_teststand(data.recording.t_s, data.truth, data.lab_estimate, found.best_forces, out)
     return {
-        "file": log_measured.note(),
-        "samples": recording.n_samples,
-        "free_samples": identified.free_samples,
-        "slider_term_rms_n": slider_term_rms_n,
-        "rms_fz_n": _rms(truth[:, 2]),
-        "rows": rows,
+        "file": data.note,
+        "samples": data.recording.n_samples,
+        "free_samples": found.identified.free_samples,
+        "slider_term_rms_n": found.slider_term_rms_n,
+        "rms_fz_n": _rms(data.truth[:, 2]),
+        "rows": found.rows,
         "sensitivity": sensitivity,
         "options": {
             "cutoff_hz": options.filter.cutoff_hz,
@@ -366,8 +346,114 @@ def teststand_study(folder: Path, out: Path, log: Callable[[str], None]) -> dict
             "guard_s": options.guard_s,
             "friction": options.friction,
         },
-        "friction_parameters": identified.model.friction.parameters.tolist(),
+        "friction_parameters": found.identified.model.friction.parameters.tolist(),
     }
+
+
+def _read_teststand(
+    folder: Path, options: TeststandOptions, log: Callable[[str], None]
+) -> _TeststandData:
+    """Read the log with commanded torques; it needs the sensor's force and the lab's."""
+    from teleop_force.estimation.teststand import free_phase_mask
+    from teleop_force.io.teststand_logs import read_teststand_folder
+
+    log_measured = read_teststand_folder(folder, "target")
+    log(log_measured.note())
+    recording = log_measured.recording
+    truth = recording.f_tip_in_base_n
+    if truth is None or log_measured.lab_estimate_n is None:
+        raise DataError(
+            "the test-stand folder needs the ATI force and the lab's estimate", path=folder
+        )
+    contact = ~free_phase_mask(recording, options.free_force_n, 0.0)
+    return _TeststandData(
+        log_measured.note(), recording, truth, log_measured.lab_estimate_n, contact
+    )
+
+
+def _teststand_rows(
+    folder: Path,
+    data: _TeststandData,
+    description: RobotDescription,
+    options: TeststandOptions,
+) -> _TeststandRows:
+    """Errors of the lab's estimate, the URDF and identified models, and the streaming path."""
+    from teleop_force.estimation.estimator import ForceEstimator
+    from teleop_force.estimation.teststand import (
+        TeststandModel,
+        estimate_forces,
+        identify_teststand,
+        nominal_teststand_model,
+    )
+    from teleop_force.io.teststand_logs import read_teststand_folder
+
+    recording, errors = data.recording, data.errors
+    rows = {"lab estimator (baseline)": errors(data.lab_estimate)}
+    nominal = nominal_teststand_model(description, options)
+    rows["URDF rigid body only"] = errors(estimate_forces(nominal, recording, description, False))
+    with_slider = TeststandModel(nominal.model, True, 0)
+    rows["URDF rigid body + slider term"] = errors(
+        estimate_forces(with_slider, recording, description, False)
+    )
+    identified = identify_teststand(recording, description, options)
+    rows["identified rigid body, no friction"] = errors(
+        estimate_forces(identified, recording, description, False)
+    )
+    best_forces = estimate_forces(identified, recording, description)
+    rows["identified rigid body + friction"] = errors(best_forces)
+    slider = TeststandModel(identified.model, True, identified.free_samples)
+    slider_forces = estimate_forces(slider, recording, description)
+    rows["identified + friction + slider term"] = errors(slider_forces)
+    nominal_friction = TeststandModel(
+        replace(nominal.model, friction=identified.model.friction), False, 0
+    )
+    rows["URDF rigid body + identified friction"] = errors(
+        estimate_forces(nominal_friction, recording, description)
+    )
+    log_other = read_teststand_folder(folder, "measured")
+    identified_other = identify_teststand(log_other.recording, description, options)
+    rows["identified + friction, measured torques"] = errors(
+        estimate_forces(identified_other, log_other.recording, description)
+    )
+    rows["streaming ForceEstimator (same model)"] = errors(
+        _stream(ForceEstimator(identified.model), recording)
+    )
+    slider_term_rms_n = _rms(slider_forces[:, 2] - best_forces[:, 2])
+    return _TeststandRows(rows, identified, best_forces, slider_term_rms_n)
+
+
+def _teststand_sensitivity(
+    data: _TeststandData, description: RobotDescription
+) -> dict[str, dict[str, float]]:
+    """Errors of the headline estimate identified with other filters and prior weights."""
+    from teleop_force.estimation.teststand import (
+        TeststandOptions,
+        estimate_forces,
+        identify_teststand,
+    )
+    from teleop_force.identification.filtered_regressor import FilterConfig
+
+    sensitivity = {}
+    for cutoff in (20.0, 40.0):
+        for weight in (0.1, 0.3, 1.0):
+            variant = TeststandOptions(
+                filter=FilterConfig(cutoff_hz=cutoff, velocity_cutoff_hz=5 * cutoff, warmup_s=0.05),
+                prior_weight=weight,
+            )
+            model = identify_teststand(data.recording, description, variant)
+            sensitivity[f"{cutoff:g} Hz, prior {weight:g}"] = data.errors(
+                estimate_forces(model, data.recording, description)
+            )
+    return sensitivity
+
+
+def _save_teststand_model(identified: TeststandModel, out: Path) -> None:
+    """Save the identified model as ``teststand_model.json`` and check that it reads back."""
+    from teleop_force.identification.dynamic_model import DynamicModel
+
+    saved = out / "teststand_model.json"
+    identified.model.save(saved)
+    DynamicModel.load(saved)  # the saved model reads back
 
 
 def _stream(estimator: Any, recording: Any) -> np.ndarray:
@@ -413,114 +499,16 @@ def _verdict(joint: int, published: float, value: float) -> str:
 
 
 def _mtm_markdown(mtm: dict[str, Any]) -> list[str]:
-    names = mtm["joint_names"]
+    """Return the dVRK MTM section of ``robots.md`` from the study's figures."""
     rows = mtm["rows"]
-    lines = [
-        "## dVRK MTM: identified on trajectory one, evaluated on trajectory two",
-        "",
-        f"- {mtm['files']['train']}",
-        f"- {mtm['files']['test']}",
-        "",
-        "Relative RMS of the filtered motor torque per joint on the independent test trajectory"
-        " (the paper's metric; training figures in `robots.json`).",
-        "",
-        "| model | " + " | ".join(f"j{j + 1}" for j in range(len(names))) + " | mean j1-3 |",
-        "|---|" + "---|" * (len(names) + 1),
-    ]
-    for name, row in rows.items():
-        if not row.get("done"):
-            lines.append(f"| {name} | not done: {row['reason']} |" + " |" * len(names))
-            continue
-        test = row["test"]
-        lines.append(
-            f"| {name} | " + " | ".join(_pct(test)) + f" | {100 * np.mean(test[:3]):.1f} % |"
-        )
-    lines += ["", "Training trajectory (same metric, fit data):", ""]
-    lines += ["| model | " + " | ".join(f"j{j + 1}" for j in range(len(names))) + " |"]
-    lines += ["|---|" + "---|" * len(names)]
-    for name, row in rows.items():
-        if row.get("done"):
-            lines.append(f"| {name} | " + " | ".join(_pct(row["train"])) + " |")
-    lines += [
-        "",
-        f"Test trajectory, both torques through a sixth-order zero-phase {MTM_FLOOR_HZ:g} Hz"
-        " low-pass (the data authors' filter type) instead of the first-order 8 Hz filter:",
-        "",
-        "| model | " + " | ".join(f"j{j + 1}" for j in range(len(names))) + " | mean j1-3 |",
-        "|---|" + "---|" * (len(names) + 1),
-    ]
-    for name, row in rows.items():
-        if row.get("test_zero_phase"):
-            low = row["test_zero_phase"]
-            lines.append(
-                f"| {name} | " + " | ".join(_pct(low)) + f" | {100 * np.mean(low[:3]):.1f} % |"
-            )
-    lines += [
-        "",
-        "Published (data authors): below "
-        f"{100 * MTM_PUBLISHED_RELATIVE_ERROR:.1f} % for joints 1-3.",
-        "",
-    ]
-    floor = mtm.get("torque_above_floor_hz", {})
-    if floor.get("relative_rms"):
-        lines += [
-            f"Share of the filtered test torque above {floor['hz']:g} Hz (the excitation is below"
-            " 1 Hz; the smoothed angles carry little motion there, so models explain little"
-            " of it): "
-            + ", ".join(f"j{j + 1} {v}" for j, v in enumerate(_pct(floor["relative_rms"][:3])))
-            + ".",
-            "",
-        ]
-    done = {k: v for k, v in rows.items() if v.get("done")}
-    lines += [f"Against the published {100 * MTM_PUBLISHED_RELATIVE_ERROR:.1f} %:", ""]
-    for name, row in done.items():
-        verdicts = []
-        for metric, key in (
-            ("8 Hz", "test"),
-            (f"{MTM_FLOOR_HZ:g} Hz zero-phase", "test_zero_phase"),
-        ):
-            if not row.get(key):
-                continue
-            verdicts.append(
-                f"{metric}: "
-                + ", ".join(
-                    _verdict(j, MTM_PUBLISHED_RELATIVE_ERROR, v) for j, v in enumerate(row[key][:3])
-                )
-            )
-        lines.append(f"- {name}: {'; '.join(verdicts)}")
-    found = mtm["effects"]
-    if isinstance(found, list):  # a report written before the model-coordinate baseline
-        found = {"wn + found effects": found}
-    for label, traced in found.items():
-        if not traced:
-            continue
-        lines += [
-            "",
-            f"Effects the residual loop found ({label}; fit on trajectory one: held-out time"
-            " blocks decide, each effect confirmed on the whole model and vetoed if it raises"
-            " an explained joint's error on blocks held out by phase; RMS columns: the"
-            " joint's own held-out design):",
-            "",
-            "| # | joint | acts on (motor torque per unit) | depends on | kind | explained"
-            " | joint RMS before | after |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
-        for k, e in enumerate(traced):
-            acts = describe_reach(e["joint"], e.get("reach"))
-            lines.append(
-                f"| {k + 1} | {e['joint']} | {acts} | {', '.join(e['depends_on'])} | {e['kind']} |"
-                f" {e['explained']:.1%} |"
-                f" {e['joint_rms_before']:.1%} | {e['joint_rms_after']:.1%} |"
-            )
-    lines += [
-        "",
-        "Gravity direction in the MTM base frame (CV friction; relative RMS joints 1-3):",
-        "",
-        "| gravity along | train j1 | j2 | j3 | test j1 | j2 | j3 |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for label, fig in mtm["gravity"].items():
-        lines.append(f"| {label} | " + " | ".join(_pct(fig["train"][:3] + fig["test"][:3])) + " |")
+    joints = len(mtm["joint_names"])
+    lines = _mtm_test_table(mtm["files"], rows, joints)
+    lines += _mtm_train_table(rows, joints)
+    lines += _mtm_zero_phase_table(rows, joints)
+    lines += _mtm_floor_note(mtm.get("torque_above_floor_hz", {}))
+    lines += _mtm_verdicts(rows)
+    lines += _mtm_effect_tables(mtm["effects"])
+    lines += _mtm_gravity_table(mtm["gravity"])
     lines += [
         "",
         "![relative RMS](mtm_relative_rms.png)",
@@ -528,6 +516,151 @@ def _mtm_markdown(mtm: dict[str, Any]) -> list[str]:
         "![torques](mtm_torque_test.png)",
         "",
     ]
+    return lines
+
+
+def _joints_head(joints: int, mean: bool) -> list[str]:
+    """Return the head of a per-joint table (with a ``mean j1-3`` column if ``mean``)."""
+    extra = 1 if mean else 0
+    return [
+        "| model | " + " | ".join(f"j{j + 1}" for j in range(joints))
+        + (" | mean j1-3 |" if mean else " |"),
+        "|---|" + "---|" * (joints + extra),
+    ]  # fmt: skip
+
+
+def _mean_row(name: str, values: Sequence[float]) -> str:
+    """Return a table row of per-joint percentages and their mean over joints 1-3."""
+    return f"| {name} | " + " | ".join(_pct(values)) + f" | {100 * np.mean(values[:3]):.1f} % |"
+
+
+def _mtm_test_table(
+    files: dict[str, str], rows: dict[str, dict[str, Any]], joints: int
+) -> list[str]:
+    """Return the section's heading and the test-trajectory table (the paper's metric)."""
+    lines = [
+        "## dVRK MTM: identified on trajectory one, evaluated on trajectory two",
+        "",
+        f"- {files['train']}",
+        f"- {files['test']}",
+        "",
+        "Relative RMS of the filtered motor torque per joint on the independent test trajectory"
+        " (the paper's metric; training figures in `robots.json`).",
+        "",
+        *_joints_head(joints, mean=True),
+    ]
+    for name, row in rows.items():
+        if not row.get("done"):
+            lines.append(f"| {name} | not done: {row['reason']} |" + " |" * joints)
+            continue
+        lines.append(_mean_row(name, row["test"]))
+    return lines
+
+
+def _mtm_train_table(rows: dict[str, dict[str, Any]], joints: int) -> list[str]:
+    """Return the training-trajectory table (same metric, on the fit data)."""
+    lines = ["", "Training trajectory (same metric, fit data):", "", *_joints_head(joints, False)]
+    for name, row in rows.items():
+        if row.get("done"):
+            lines.append(f"| {name} | " + " | ".join(_pct(row["train"])) + " |")
+    return lines
+
+
+def _mtm_zero_phase_table(rows: dict[str, dict[str, Any]], joints: int) -> list[str]:
+    """Return the test table under the data authors' zero-phase filter, and their figure."""
+    lines = [
+        "",
+        f"Test trajectory, both torques through a sixth-order zero-phase {MTM_FLOOR_HZ:g} Hz"
+        " low-pass (the data authors' filter type) instead of the first-order 8 Hz filter:",
+        "",
+        *_joints_head(joints, mean=True),
+    ]
+    for name, row in rows.items():
+        if row.get("test_zero_phase"):
+            lines.append(_mean_row(name, row["test_zero_phase"]))
+    published = f"{100 * MTM_PUBLISHED_RELATIVE_ERROR:.1f} % for joints 1-3."
+    lines += ["", f"Published (data authors): below {published}", ""]
+    return lines
+
+
+def _mtm_floor_note(floor: dict[str, Any]) -> list[str]:
+    """Return the share of the test torque above the floor frequency (nothing if not done)."""
+    if not floor.get("relative_rms"):
+        return []
+    return [
+        f"Share of the filtered test torque above {floor['hz']:g} Hz (the excitation is below"
+        " 1 Hz; the smoothed angles carry little motion there, so models explain little"
+        " of it): "
+        + ", ".join(f"j{j + 1} {v}" for j, v in enumerate(_pct(floor["relative_rms"][:3])))
+        + ".",
+        "",
+    ]
+
+
+def _mtm_verdicts(rows: dict[str, dict[str, Any]]) -> list[str]:
+    """Return, per model done, how joints 1-3 compare with the published figure."""
+    lines = [f"Against the published {100 * MTM_PUBLISHED_RELATIVE_ERROR:.1f} %:", ""]
+    metrics = (("8 Hz", "test"), (f"{MTM_FLOOR_HZ:g} Hz zero-phase", "test_zero_phase"))
+    for name, row in rows.items():
+        if not row.get("done"):
+            continue
+        verdicts = [
+            f"{metric}: "
+            + ", ".join(
+                _verdict(j, MTM_PUBLISHED_RELATIVE_ERROR, v) for j, v in enumerate(row[key][:3])
+            )
+            for metric, key in metrics
+            if row.get(key)
+        ]
+        lines.append(f"- {name}: {'; '.join(verdicts)}")
+    return lines
+
+
+def _mtm_effect_tables(found: dict[str, list[dict[str, Any]]] | list[dict[str, Any]]) -> list[str]:
+    """Return one table per residual-loop run of the effects it found (none if it found none)."""
+    if isinstance(found, list):  # a report written before the model-coordinate baseline
+        found = {"wn + found effects": found}
+    lines: list[str] = []
+    for label, traced in found.items():
+        if traced:
+            lines += _mtm_effect_table(label, traced)
+    return lines
+
+
+def _mtm_effect_table(label: str, traced: list[dict[str, Any]]) -> list[str]:
+    """Return the table of the effects one residual-loop run found."""
+    lines = [
+        "",
+        f"Effects the residual loop found ({label}; fit on trajectory one: held-out time"
+        " blocks decide, each effect confirmed on the whole model and vetoed if it raises"
+        " an explained joint's error on blocks held out by phase; RMS columns: the"
+        " joint's own held-out design):",
+        "",
+        "| # | joint | acts on (motor torque per unit) | depends on | kind | explained"
+        " | joint RMS before | after |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for k, e in enumerate(traced):
+        acts = describe_reach(e["joint"], e.get("reach"))
+        lines.append(
+            f"| {k + 1} | {e['joint']} | {acts} | {', '.join(e['depends_on'])} | {e['kind']} |"
+            f" {e['explained']:.1%} |"
+            f" {e['joint_rms_before']:.1%} | {e['joint_rms_after']:.1%} |"
+        )
+    return lines
+
+
+def _mtm_gravity_table(gravity: dict[str, dict[str, list[float]]]) -> list[str]:
+    """Return the table of the gravity-direction check (relative RMS, joints 1-3)."""
+    lines = [
+        "",
+        "Gravity direction in the MTM base frame (CV friction; relative RMS joints 1-3):",
+        "",
+        "| gravity along | train j1 | j2 | j3 | test j1 | j2 | j3 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for label, fig in gravity.items():
+        lines.append(f"| {label} | " + " | ".join(_pct(fig["train"][:3] + fig["test"][:3])) + " |")
     return lines
 
 
