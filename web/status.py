@@ -2,7 +2,7 @@
 
 Rules, in order (the first that applies sets the headline, every one that applies is listed):
 
-1. no ForceEstimateMessage yet, or the last one arrived more than ``stale_after_s`` ago: grey
+1. no ForceEstimate yet, or the last one arrived more than ``stale_after_s`` ago: grey
    ("waiting") or red ("stale") -- not trustworthy;
 2. any joint reported ``on_trained_ground = False`` within the last ``untrained_hold_s``: red
    "UNTRAINED GROUND" -- not trustworthy (held a moment so a brief excursion stays readable);
@@ -41,7 +41,7 @@ class TrustInputs:
     """What the verdict is computed from (all ages in seconds, ``inf`` if never received).
 
     Attributes:
-        estimate_age_s: Time since the last ForceEstimateMessage arrived.
+        estimate_age_s: Time since the last ForceEstimate arrived.
         untrained_joints: 0-based joints off trained ground within the hold window.
         force_nan: The last estimate had no force (NaN).
         coverage_weight: Coverage weight per joint of the last estimate (may be empty).

@@ -107,7 +107,7 @@ class Telemetry:
         self._joint_state_arrival = arrival
 
     def on_estimate(self, payload: bytes) -> None:
-        """Decode and store one ForceEstimateMessage."""
+        """Decode and store one ForceEstimate message."""
         stats = self.stats["estimated_cf"]
         try:
             msg = ForceEstimateMessage.decode(payload)
@@ -181,7 +181,7 @@ class Telemetry:
         return math.inf if status is None else self._clock() - status.arrival_s
 
     def estimate_age_s(self) -> float:
-        """Seconds since the last ForceEstimateMessage arrived (``inf`` if none)."""
+        """Seconds since the last ForceEstimate arrived (``inf`` if none)."""
         return self._clock() - self._estimate_arrival
 
     def joint_state_age_s(self) -> float:

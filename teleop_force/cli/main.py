@@ -238,10 +238,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         payload: dict[str, Any] = result.to_dict()
         if service is not None:
             expected = result.published.get(f"omni/{device}/measured_js", 0)
+            seqs = service.joint_states.seqs
             done, idle_since = -1, time.perf_counter()
-            while service.seqs.received < expected and time.perf_counter() - idle_since < 10.0:
-                if service.seqs.received != done:  # still progressing: keep waiting
-                    done, idle_since = service.seqs.received, time.perf_counter()
+            while seqs.received < expected and time.perf_counter() - idle_since < 10.0:
+                if seqs.received != done:  # still progressing: keep waiting
+                    done, idle_since = seqs.received, time.perf_counter()
                 time.sleep(0.01)
             service.close()
             payload["service"] = service.stats()

@@ -36,7 +36,7 @@ from teleop_force.friction.terms import (
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effect_terms import add_effects_torque_into
-from teleop_force.identification.effects import FoundEffect, effects_table
+from teleop_force.identification.effects import effects_table
 
 #: Friction modes of :func:`model_terms_into`.
 FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK = 0, 1, 2
@@ -154,9 +154,7 @@ class ModelTerms:
         self.model = model
         self.n = n = model.n_joints
         self.friction = model.friction
-        found = [e for e in model.effects if isinstance(e, FoundEffect)]
-        self._other_effects = [e for e in model.effects if not isinstance(e, FoundEffect)]
-        table = effects_table(found, n)
+        table = effects_table(model.effects, n)
         self._effect_codes, self._effect_floats = table.codes, table.floats
         self.io = np.zeros(1 + 6 * n + table.work.size)
         self._out = slice(1 + 3 * n, 1 + 5 * n)
@@ -171,7 +169,6 @@ class ModelTerms:
         """(Re)build the tables of the network's fallback and coverage map."""
         fallback = network.fallback
         if fallback is None:
-            network.blended_torque(np.zeros((1, self.n)))  # raises the model error
             raise ModelError("wn: blended_torque needs a fitted coupled-CV fallback model")
         table = _term_table(fallback, self.n)
         if table is None:
@@ -226,11 +223,6 @@ class ModelTerms:
             torque = self.model.friction_torque(row)[0].tolist()
             other = [o + f for o, f in zip(other, torque, strict=True)]
             weight = friction.coverage_weight(row)[0].tolist()
-        for effect in self._other_effects:
-            torque = effect.torque(
-                np.asarray([t]), np.asarray([q]), np.asarray([qd]), np.asarray([load])
-            )[0].tolist()
-            other = [o + f for o, f in zip(other, torque, strict=True)]
         return other, weight
 
 

@@ -21,7 +21,7 @@ from msgspec import Struct
 from teleop_force.errors import ModelError, ModelFileError, TeleopForceError
 from teleop_force.friction import friction_from_dict
 from teleop_force.friction.base import FrictionModel, JointCount
-from teleop_force.identification.effects import FoundEffect, effect_from_dict
+from teleop_force.identification.effects import FoundEffect, effect_from_dict, total_torque
 from teleop_force.identification.filtered_regressor import (
     FilterConfig,
     FilteredSignals,
@@ -57,8 +57,8 @@ class DynamicModel:
         base_std: Their standard deviations.
         friction: Friction model (its parameters may adapt online).
         offsets_nm: Constant torque per joint (used when there are no rigid-body terms).
-        effects: Effects found by the residual loop (JSON dicts understood by
-            :mod:`teleop_force.identification.effects`).
+        effects: Effects found by the residual loop
+            (:class:`~teleop_force.identification.effects.FoundEffect`).
         notes: Free-form provenance (data files, figures at identification time).
 
     """
@@ -71,7 +71,7 @@ class DynamicModel:
     base_std: np.ndarray
     friction: FrictionModel
     offsets_nm: np.ndarray
-    effects: tuple[Any, ...] = ()
+    effects: tuple[FoundEffect, ...] = ()
     notes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -96,10 +96,9 @@ class DynamicModel:
         self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray
     ) -> np.ndarray:
         """Torque of the found effects (N x n); ``load`` is the filtered rigid-body model torque."""
-        total = np.zeros_like(np.asarray(q, dtype=float))
-        for effect in self.effects:
-            total += effect.torque(t_s, q, qd, load)
-        return total
+        if not self.effects:
+            return np.zeros_like(np.asarray(q, dtype=float))
+        return total_torque(self.effects, t_s, q, qd, load)
 
     def predict_filtered_torque(
         self, signals: FilteredSignals, tau_nm: np.ndarray, blend: bool = True

@@ -32,14 +32,13 @@ from teleop_force.identification.effect_terms import (
     EffectShape,
     EffectTable,
     EffectVariable,
+    VariableKind,
     effect_basis,
     effects_torque,
     variable_values_batch,
 )
 from teleop_force.schema import Finite, read_entry
 
-SHAPES = tuple(EffectShape)
-MODULATIONS = tuple(EffectModulation)
 #: A count of bumps or harmonics in a model file.
 BasisCount = Annotated[int, Meta(ge=0, le=10**6)]
 
@@ -175,28 +174,22 @@ class BasisSpec:
     @property
     def size(self) -> int:
         """Number of basis functions."""
-        return (2 if self.modulation == "both" else 1) * {
-            "constant": 1,
-            "linear": 1,
-            "abs": 1,
-            "smooth": self.count,
-            "periodic": 2 * self.harmonics,
-            "stribeck": len(self.scales),
-        }[self.shape]
+        per_direction = 2 if self.modulation == "both" else 1
+        return per_direction * (2 if self.shape == "periodic" else 1) * self.shape_count
 
     @property
     def kind(self) -> str:
         """Short name of the effect family, as reported by ``residual``."""
-        var = self.variable
         if self.shape == "constant":
             return "direction-dependent offset" if self.modulation != "none" else "offset"
         if self.shape == "stribeck":
             return "stribeck friction"
-        if var == "t":
+        variable = self.effect_variable.kind if self.effect_variable is not None else None
+        if variable == VariableKind.TIME:
             return "friction drift" if self.modulation != "none" else "torque drift"
-        if var.startswith("tau"):
+        if variable == VariableKind.LOAD:
             return "load-dependent friction"
-        if var.startswith("qd"):
+        if variable == VariableKind.VELOCITY:
             return "cross-joint coupling"
         if self.modulation == "both":
             return "position-dependent torque, direction-dependent part"
@@ -319,6 +312,17 @@ def effects_table(effects: Sequence[FoundEffect], n_joints: int) -> EffectTable:
         [effect.spec.shape_parameters() for effect in effects],
         [effect.coefficients for effect in effects],
         [effect.weights(n_joints) for effect in effects],
+    )
+
+
+def total_torque(
+    effects: Sequence[FoundEffect], t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
+    """Torque of all ``effects`` on all joints (N x n), in one compiled call."""
+    q = _samples(q)
+    table = effects_table(effects, q.shape[1])
+    return effects_torque(
+        table.codes, table.floats, _since_start(t_s), q, _samples(qd), _samples(tau)
     )
 
 

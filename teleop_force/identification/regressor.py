@@ -29,7 +29,7 @@ from msgspec import Meta, Struct
 
 from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.robots.description import LINK_PARAMETER_NAMES, RobotDescription
-from teleop_force.schema import Finite, read_entry
+from teleop_force.schema import Finite
 
 _DIRECTIONAL_STEP = 1e-5
 #: A parameter index in a model file.
@@ -190,16 +190,6 @@ class BaseParameters:
             "dependent": self.dependent.tolist(),
             "dependency": self.dependency.tolist(),
         }
-
-    @classmethod
-    def from_dict(cls, data: dict[str, object]) -> BaseParameters:
-        """Deserialise; raise ModelFileError naming the field (``independent``...) if malformed.
-
-        The indices must be integers that split ``0..len(full_names)-1`` between
-        ``independent`` and ``dependent`` (each once), and ``dependency`` finite numbers of
-        shape ``(len(independent), len(dependent))``.
-        """
-        return read_entry(data, BaseParametersEntry).parameters()
 
 
 class BaseParametersEntry(Struct):

@@ -64,8 +64,6 @@ from teleop_force.robots.file_schema import (
 )
 from teleop_force.schema import Finite, read_entry, shown
 
-FILE_FORMAT = "teleop-force-robot"
-FILE_VERSION = 1
 SUFFIXES = (".json", ".toml")
 T = TypeVar("T")
 

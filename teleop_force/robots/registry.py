@@ -57,11 +57,3 @@ def _builtin_description(kind: RobotKind, n_joints: int | None) -> RobotDescript
             from teleop_force.robots.teststand import teststand_description
 
             return teststand_description()
-
-
-__all__ = (
-    "BUILTIN_ROBOTS",
-    "RobotKind",
-    "friction_only_description",
-    "resolve_robot",
-)

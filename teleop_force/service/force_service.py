@@ -85,7 +85,6 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.service.adaptation import OnlineAdaptation
 from teleop_force.service.adaptation_state import AdaptationState
 from teleop_force.service.controls import (
     ControlError,
@@ -95,9 +94,8 @@ from teleop_force.service.controls import (
     read_model_file,
     record_folders,
 )
-from teleop_force.service.counters import MAX_COUNTED_KEYS as MAX_COUNTED_KEYS
-from teleop_force.service.counters import OTHER_KEYS as OTHER_KEYS
 from teleop_force.service.counters import (
+    MAX_COUNTED_KEYS,
     ControlCounters,
     EstimateCounters,
     JointStateCounters,
@@ -105,7 +103,6 @@ from teleop_force.service.counters import (
 )
 from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
-from teleop_force.service.stream_clock import MAX_STREAM_PAUSE_NS as MAX_STREAM_PAUSE_NS
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -120,7 +117,6 @@ from teleop_force.transport.pubsub import (
     undeclare_all,
 )
 from teleop_force.transport.session import open_session, options_from_args
-from teleop_force.transport.stream_stats import SequenceTracker
 
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
@@ -208,7 +204,7 @@ class ForceService:
         self.allowed_records = record_folders(self.config.record_dirs)
         self._own_js_key = keys.measured_js(self.config.device)
         self._estimate_key = keys.estimated_cf(self.config.device)
-        self._init_threads()
+        self._init_runtime()
         self.stream = StreamClock()
         self.joint_states = JointStateCounters()
         self.estimates = EstimateCounters(self.n_joints)
@@ -223,8 +219,8 @@ class ForceService:
                 self._open_writer(self.config.record_path), self._count_malformed
             )
 
-    def _init_threads(self) -> None:
-        """Prepare the lock, queues and threads, and the Zenoh entities (made by start)."""
+    def _init_runtime(self) -> None:
+        """Prepare the lock, queues, threads, Zenoh entity slots and the run-time bookkeeping."""
         self._lock = threading.Lock()
         self._closed = False
         self._entities: list[Any] = []
@@ -235,53 +231,6 @@ class ForceService:
         self._control_thread: threading.Thread | None = None
         self._logged: set[str] = set()
         self._started_s = time.perf_counter()
-
-    # -- state kept for other code (each in one of the parts) ---------------------------------
-
-    @property
-    def seqs(self) -> SequenceTracker:
-        """Sequence tracking of the joint states received (``joint_states.seqs``)."""
-        return self.joint_states.seqs
-
-    @property
-    def published(self) -> int:
-        """Estimates published (``estimates.published``)."""
-        return self.estimates.published
-
-    @property
-    def estimate_errors(self) -> int:
-        """Estimates that could not be computed (``estimates.errors``)."""
-        return self.estimates.errors
-
-    @property
-    def malformed_by_key(self) -> dict[str, int]:
-        """Malformed messages dropped, by key (``malformed.by_key``)."""
-        return self.malformed.by_key
-
-    @property
-    def adaptation(self) -> OnlineAdaptation | None:
-        """The online adaptation driver (``adaptation_state.adaptation``)."""
-        return self.adaptation_state.adaptation
-
-    @property
-    def adapting(self) -> bool:
-        """Whether online adaptation is on (``adaptation_state.enabled``)."""
-        return self.adaptation_state.enabled
-
-    @property
-    def adaptation_note(self) -> str:
-        """Why the running model cannot be adapted, or empty (``adaptation_state.note``)."""
-        return self.adaptation_state.note
-
-    @property
-    def recorder(self) -> BackgroundRecorder | None:
-        """The recording open, or ``None`` (``recording.recorder``)."""
-        return self.recording.recorder
-
-    @property
-    def last_recording(self) -> dict[str, Any] | None:
-        """Final counters of the last recording closed (``recording.last``)."""
-        return self.recording.last
 
     # -- lifetime -----------------------------------------------------------------------------
 

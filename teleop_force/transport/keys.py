@@ -5,7 +5,7 @@ Each key carries the id of the device it is about, so several arms can share one
     omni/<device>/measured_js        JointState: t, q, qd, effort (= commanded motor torque)
     omni/<device>/setpoint_js        JointSetpoint: master pose sent to the slave as joint targets
     omni/<device>/measured_cf        ContactForce: ground-truth tip force (sensor or simulator)
-    omni/<device>/estimated_cf       ForceEstimateMessage: estimated tip force and its diagnostics
+    omni/<device>/estimated_cf       ForceEstimate: estimated tip force and its diagnostics
     omni/<device>/status             Status: safety state (following / holding) and reason
     omni/<device>/service/model      queryable: the model the estimator runs
     omni/<device>/service/stats      queryable: estimator statistics
@@ -87,7 +87,7 @@ def measured_cf(device: str) -> str:
 
 
 def estimated_cf(device: str) -> str:
-    """Key of the estimated contact force of ``device`` (ForceEstimateMessage messages)."""
+    """Key of the estimated contact force of ``device`` (ForceEstimate messages)."""
     return _key(device, ESTIMATED_CF)
 
 

@@ -553,19 +553,19 @@ class ForceEstimateMessage:
         """Parse a binary message; raise MessageError if it is malformed in any way."""
         buf = _buffer(data)
         _check_header(buf, cls.TYPE)
-        n = _joint_count(buf, "ForceEstimateMessage", offset=HEADER_SIZE + 4)
+        n = _joint_count(buf, "ForceEstimate", offset=HEADER_SIZE + 4)
         layout = _FORCE_ESTIMATE[n]
-        _check_size(buf, layout.size, "ForceEstimateMessage")
+        _check_size(buf, layout.size, "ForceEstimate")
         v = layout.unpack(buf)
         mask = int.from_bytes(v[-1], "little")
         if mask >> n:
-            raise MessageError(f"ForceEstimateMessage: on_trained_ground bits set beyond joint {n}")
+            raise MessageError(f"ForceEstimate: on_trained_ground bits set beyond joint {n}")
         f = v[7:10]
         if any(map(math.isinf, f)):
-            raise MessageError("ForceEstimateMessage: infinite f_n")
+            raise MessageError("ForceEstimate: infinite f_n")
         o = 10  # index of tau_ext_nm[0] in v
         if not _all_finite(v[o:-1]):
-            raise MessageError("ForceEstimateMessage: non-finite joint-space value")
+            raise MessageError("ForceEstimate: non-finite joint-space value")
         flags = tuple(bool(mask >> j & 1) for j in range(n))
         return _build(
             cls,
@@ -601,9 +601,7 @@ class ForceEstimateMessage:
             force = tuple(math.nan if f[k] is None else f[k] for k in ("x", "y", "z"))
             flags = d["on_trained_ground"]
             if not isinstance(flags, list) or not all(isinstance(x, bool) for x in flags):
-                raise MessageError(
-                    "ForceEstimateMessage: on_trained_ground must be a list of booleans"
-                )
+                raise MessageError("ForceEstimate: on_trained_ground must be a list of booleans")
             return cls(
                 d["seq"], d["t_ns"], d["source_seq"], force, d["tau_ext_nm"], tuple(flags),
                 d["coverage_weight"], d["tau_motor_filtered_nm"], d["tau_model_filtered_nm"],

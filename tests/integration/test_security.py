@@ -411,5 +411,5 @@ def test_access_control_makes_the_service_read_only_for_remote_peers(tmp_path):
         server.close()
     assert control == [] and load == []  # denied: the queries never reached the service
     assert after["controls"]["requests"] == 0 and after["model"]["loads"] == 0
-    assert service.adaptation_note or after["adaptation"]["enabled"] is False
+    assert service.adaptation_state.note or after["adaptation"]["enabled"] is False
     assert len(local) == 1 and local[0].ok is not None

@@ -301,12 +301,16 @@ def test_the_supervisors_accuracy_accumulator_stays_bounded():
 def test_the_services_malformed_table_stays_bounded(zenoh_session):
     from teleop_force.identification.dynamic_model import DynamicModel
     from teleop_force.models import DEFAULT_MODEL_PATH
-    from teleop_force.service.force_service import MAX_COUNTED_KEYS, OTHER_KEYS, ForceService
+    from teleop_force.service.counters import MAX_COUNTED_KEYS, OTHER_KEYS
+    from teleop_force.service.force_service import ForceService
 
     service = ForceService(zenoh_session, DynamicModel.load(DEFAULT_MODEL_PATH))
     for k in range(10 * MAX_COUNTED_KEYS):
         service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
-    table = service.stats()["malformed"]["by_key"]
+    malformed = service.stats()["malformed"]
+    table = malformed["by_key"]
     assert len(table) == MAX_COUNTED_KEYS + 1
     assert table[OTHER_KEYS] == 9 * MAX_COUNTED_KEYS
     assert sum(table.values()) == 10 * MAX_COUNTED_KEYS
+    assert malformed["dropped"] == 10 * MAX_COUNTED_KEYS
+    assert malformed["last"] == f"{OTHER_KEYS}: bad"

@@ -156,12 +156,12 @@ def test_adaptation_runs_on_a_wavelet_network_model(session, model):
     try:
         before = network.parameters.copy()
         session.put(keys.service_adapt(DEVICE), "on")
-        wait_until(lambda: service.adapting)
+        wait_until(lambda: service.adaptation_state.enabled)
         for js in joint_states(200):
             pub.put(js.encode())
         wait_until(lambda: len(got) == 200)
         session.put(keys.service_adapt(DEVICE), "off")
-        wait_until(lambda: not service.adapting)
+        wait_until(lambda: not service.adaptation_state.enabled)
         stats = service.stats()
     finally:
         sub.undeclare()
@@ -187,7 +187,7 @@ def test_stats_report_the_process_memory_trimmer(session, model):
     assert ForceService(session, model, ServiceConfig(device=DEVICE)).stats()["memory"] is None
 
 
-def test_stats_keep_their_keys_and_the_old_attributes_read_the_parts(session, model):
+def test_stats_keep_their_keys(session, model):
     service = ForceService(session, model, ServiceConfig(device=DEVICE))
     stats = service.stats()
     assert list(stats) == [
@@ -206,26 +206,6 @@ def test_stats_keep_their_keys_and_the_old_attributes_read_the_parts(session, mo
     assert list(stats["controls"]) == ["requests", "refused", "last_refusal"]
     assert stats["on_ground_fraction"] is None and stats["last_estimate"] is None
     assert stats["recording"] is None and stats["last_recording"] is None
-    # The attributes other code reads are the parts' own.
-    assert service.seqs is service.joint_states.seqs
-    assert service.malformed_by_key is service.malformed.by_key
-    assert (service.published, service.estimate_errors) == (0, 0)
-    assert (service.adapting, service.adaptation, service.recorder) == (False, None, None)
-    assert service.adaptation_note == service.adaptation_state.note != ""
-    assert service.last_recording is None
-
-
-def test_the_services_malformed_table_is_capped(session, model):
-    from teleop_force.service.force_service import MAX_COUNTED_KEYS, OTHER_KEYS
-
-    service = ForceService(session, model, ServiceConfig(device=DEVICE))
-    for k in range(2 * MAX_COUNTED_KEYS):
-        service._count_malformed(f"omni/device-{k}/setpoint_js", ValueError("bad"))
-    malformed = service.stats()["malformed"]
-    assert malformed["dropped"] == 2 * MAX_COUNTED_KEYS
-    assert len(malformed["by_key"]) == MAX_COUNTED_KEYS + 1
-    assert malformed["by_key"][OTHER_KEYS] == MAX_COUNTED_KEYS
-    assert malformed["last"] == f"{OTHER_KEYS}: bad"
 
 
 def test_estimate_seqs_count_on_across_stream_restarts(session, model):
