@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 _LOCATIONS = {
     "BaseParameters": "teleop_force.identification.regressor",
     "ConfigurationError": "teleop_force.errors",
-    "CoulombViscous": "teleop_force.friction",
-    "CoupledCoulombViscous": "teleop_force.friction",
+    "CoulombViscous": "teleop_force.friction.coulomb_viscous",
+    "CoupledCoulombViscous": "teleop_force.friction.coulomb_viscous",
     "CoverageMap": "teleop_force.friction.coverage",
     "DataError": "teleop_force.errors",
     "Device": "teleop_force.robots.device",
@@ -24,7 +24,7 @@ _LOCATIONS = {
     "FilterConfig": "teleop_force.identification.filtered_regressor",
     "ForceEstimate": "teleop_force.estimation.estimator",
     "ForceEstimator": "teleop_force.estimation.estimator",
-    "FrictionModel": "teleop_force.friction",
+    "FrictionModel": "teleop_force.friction.base",
     "Identification": "teleop_force.identification.least_squares",
     "LowPass": "teleop_force.lowpass",
     "LyapunovAdapter": "teleop_force.friction.adaptation",
@@ -67,9 +67,10 @@ if TYPE_CHECKING:
         TransportError,
     )
     from teleop_force.estimation.estimator import ForceEstimate, ForceEstimator
-    from teleop_force.friction import CoulombViscous, CoupledCoulombViscous, FrictionModel
     from teleop_force.friction.adaptation import LyapunovAdapter
+    from teleop_force.friction.base import FrictionModel
     from teleop_force.friction.batch_fit import fit_batch
+    from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
     from teleop_force.friction.coverage import CoverageMap
     from teleop_force.friction.wavelet_network import WaveletNetwork
     from teleop_force.identification.dynamic_model import DynamicModel

@@ -30,6 +30,7 @@ from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     coverage_trust_into,
     linear_friction_torque_into,
+    term_velocity,
     trust_blend,
     wavelet_network_torque_into,
 )
@@ -243,14 +244,7 @@ def _term_table(friction: object, n: int) -> np.ndarray | None:
 def linear_map_into(matrix: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
     """``out = matrix @ x`` over the nonzero entries of a small matrix."""
     for i in range(matrix.shape[0]):
-        total = 0.0
-        for j in range(matrix.shape[1]):
-            m = matrix[i, j]
-            if m == 1.0:
-                total += x[j]
-            elif m != 0.0:
-                total += m * x[j]
-        out[i] = total
+        out[i] = term_velocity(matrix[i], x)
 
 
 @njit_cached()

@@ -1,41 +1,7 @@
-"""Friction models, all linear in their parameters."""
+"""Friction models, all linear in their parameters.
 
-from __future__ import annotations
-
-from typing import Any
-
-from teleop_force.errors import ModelFileError
-from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
-from teleop_force.friction.kinds import FRICTION_KINDS, FrictionKind
-from teleop_force.friction.model_coordinates import ModelCoordinateFriction
-
-
-def friction_from_dict(data: dict[str, Any]) -> FrictionModel:
-    """Rebuild a friction model from its ``to_dict`` form; ModelFileError names a bad field."""
-    kind = data.get("kind") if isinstance(data, dict) else None
-    if kind == CoulombViscous.kind:
-        return CoulombViscous.from_dict(data)
-    if kind == CoupledCoulombViscous.kind:
-        return CoupledCoulombViscous.from_dict(data)
-    if kind == ModelCoordinateFriction.kind:
-        return ModelCoordinateFriction.from_dict(data)
-    if kind == "wn":
-        from teleop_force.friction.wavelet_network import WaveletNetwork
-
-        return WaveletNetwork.from_dict(data)
-    expected = ", ".join(FRICTION_KINDS)
-    raise ModelFileError(
-        f"unknown friction kind {kind!r}; expected one of {expected}", column="kind"
-    )
-
-
-__all__ = [
-    "FRICTION_KINDS",
-    "CoulombViscous",
-    "CoupledCoulombViscous",
-    "FrictionKind",
-    "FrictionModel",
-    "ModelCoordinateFriction",
-    "friction_from_dict",
-]
+One module per model (``coulomb_viscous``, ``model_coordinates``, ``wavelet_network``), their
+compiled terms (``terms``), the base class (``base``), the kinds (``kinds``) and reading any of
+them from a model file (``model_file``). Nothing is imported here, so that the light modules
+(``kinds`` for the CLI's choices) load without numba.
+"""

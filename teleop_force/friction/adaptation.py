@@ -83,7 +83,7 @@ import numpy as np
 from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.friction.terms import pool_wavelets
 from teleop_force.friction.wavelet_network import WaveletNetwork
-from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, sample_intervals
+from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, regularised_intervals
 
 #: An excluded wavelet's coefficient decays as ``exp(-t / tau)`` with
 #: ``tau = removal_time_s / REMOVAL_TIME_CONSTANTS``; after ``removal_time_s`` (e^-5, < 1 %
@@ -185,20 +185,6 @@ class AdaptationResult:
     def samples_per_s(self) -> float:
         """Processing speed [samples/s]."""
         return self.samples / self.wall_time_s if self.wall_time_s > 0 else math.inf
-
-
-def regularised_intervals(t_s: np.ndarray) -> np.ndarray:
-    """Return ``sample_intervals``, with jitter below 1e-9 relative snapped to the median.
-
-    Time stamps like ``arange(N) / 1000`` differ from a uniform grid by rounding only; using
-    one exact interval makes the per-block filter constants identical (and cacheable) and
-    matches :func:`teleop_force.lowpass.lowpass_batch`, which does the same.
-    """
-    dt = sample_intervals(t_s)
-    median = float(np.median(dt))
-    if float(np.ptp(dt)) <= 1e-9 * median:
-        return np.full_like(dt, median)
-    return dt
 
 
 class LyapunovAdapter:

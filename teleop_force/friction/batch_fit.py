@@ -34,7 +34,6 @@ from scipy.ndimage import uniform_filter
 from threadpoolctl import threadpool_limits
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError
-from teleop_force.friction.adaptation import regularised_intervals
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.wavelet_network import (
     WaveletJointSpec,
@@ -42,7 +41,7 @@ from teleop_force.friction.wavelet_network import (
     mexican_hat,
     wavelet_amplitude,
 )
-from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch
+from teleop_force.lowpass import DEFAULT_CUTOFF_HZ, lowpass_batch, regularised_intervals
 
 
 @dataclass(frozen=True)

@@ -62,18 +62,14 @@ FLUSH = 1e-150
 _A_MIN = 1e-100
 
 
-#: ``numba.njit(cache=True, ...)`` with the in-memory fallback (:mod:`teleop_force.compiled`).
-_jit = njit_cached
-
-
-@_jit(nogil=True, fastmath={"contract"})
+@njit_cached(fastmath={"contract"})
 def _psi(r2: float, amp: float, cut: float) -> float:  # pragma: no cover - compiled
     """Return the Mexican hat (``terms.mexican_hat_r2``) for ``r2 < cut``, else 0."""
     psi = mexican_hat_r2(r2, amp)
     return psi if r2 < cut else 0.0
 
 
-@_jit(nogil=True, fastmath={"contract"})
+@njit_cached(fastmath={"contract"})
 def _filtered_rows(
     x: np.ndarray,
     line_inv: np.ndarray,
@@ -243,7 +239,7 @@ class FilteredWavelets:
         return out[:n_rows]
 
 
-@_jit(nogil=True, fastmath={"contract"})
+@njit_cached(fastmath={"contract"})
 def _sum4(values: np.ndarray, lo: int, hi: int) -> float:  # pragma: no cover - compiled
     """``sum(values[lo:hi])`` with four partial sums (a shorter dependency chain)."""
     a0 = a1 = a2 = a3 = 0.0
@@ -260,7 +256,7 @@ def _sum4(values: np.ndarray, lo: int, hi: int) -> float:  # pragma: no cover - 
     return (a0 + a1) + (a2 + a3)
 
 
-@_jit(nogil=True, fastmath={"contract"})
+@njit_cached(fastmath={"contract"})
 def adapt_samples(
     qd: np.ndarray,
     p_l: np.ndarray,

@@ -54,13 +54,20 @@ def term_velocity(row: np.ndarray, qd: np.ndarray) -> float:  # pragma: no cover
     w = 0.0
     for i in range(row.size):
         r = row[i]
-        if r == 1.0:
-            w += qd[i]
-        elif r == -1.0:
-            w -= qd[i]
-        elif r != 0.0:
+        if r != 0.0:  # ±1 rows multiply exactly; zeros are skipped, so a NaN stays put
             w += r * qd[i]
     return w
+
+
+@njit_cached()
+def add_weighted_into(
+    value: float, weights: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover
+    """``out += weights * value`` over the nonzero weights (a term's reach on the joints)."""
+    for j in range(out.size):
+        weight = weights[j]
+        if weight != 0.0:
+            out[j] += weight * value
 
 
 @njit_cached()
@@ -70,12 +77,7 @@ def linear_friction_torque_into(
     """Add the torque of every term of a term table at one sample ``qd`` (n,) to ``out`` (n,)."""
     for t in range(rows.shape[0]):
         f = coulomb_viscous(term_velocity(rows[t], qd), parameters[2 * t], parameters[2 * t + 1])
-        for j in range(out.size):
-            weight = reach[t, j]
-            if weight == 1.0:
-                out[j] += f
-            elif weight != 0.0:
-                out[j] += weight * f
+        add_weighted_into(f, reach[t], out)
 
 
 @njit_cached()
@@ -210,7 +212,8 @@ def wavelet_network_torque_into(
 ) -> None:  # pragma: no cover - compiled
     """Add the torque of a wavelet table at one sample ``qd`` (n,) to ``out`` (n,).
 
-    ``inputs`` (P, d): the velocity each wavelet's input column reads (-1: unused);
+    ``inputs`` (P, d): the velocity each wavelet's input column reads (``n`` or more: unused,
+    as in the pool's ``input_index``);
     ``table`` (P, d + 1 + n): ``centre_scaled`` (d), ``inv_scale``, then the wavelet's
     weight ``amplitude * coefficient`` on every joint (a wavelet that several joints' networks
     share is one row).
@@ -222,7 +225,7 @@ def wavelet_network_torque_into(
         r2 = 0.0
         for i in range(d):
             index = inputs[c, i]
-            if index >= 0:
+            if index < qd.size:
                 u = qd[index] * inv - table[c, i]
                 r2 += u * u
         psi = mexican_hat_r2(r2, 1.0)
@@ -317,15 +320,6 @@ def grid_density_batch(
     out = np.empty(qd.shape[0])
     for k in range(qd.shape[0]):
         out[k] = grid_density(qd[k], inputs, lo, cell, shape, values)
-    return out
-
-
-@njit_cached()
-def smoothstep_values(s: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """:func:`smoothstep` of every entry of a 1-D array."""
-    out = np.empty(s.size)
-    for k in range(s.size):
-        out[k] = smoothstep(s[k])
     return out
 
 

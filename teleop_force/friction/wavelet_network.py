@@ -505,8 +505,7 @@ class _SingleSampleTorque:
             slot[k] = slots[key]
         unique = np.asarray(first, dtype=np.int64)
         d = pool.dmax
-        inputs = pool.input_index[unique]
-        self.inputs = np.ascontiguousarray(np.where(inputs < pool.n_inputs, inputs, -1))
+        self.inputs = np.ascontiguousarray(pool.input_index[unique])
         self.table = np.zeros((unique.size, d + 1 + self.n))
         self.table[:, :d] = pool.centre_scaled[unique]
         self.table[:, d] = pool.inv_scale[unique]

@@ -19,8 +19,8 @@ import numpy as np
 from msgspec import Struct
 
 from teleop_force.errors import ModelError, ModelFileError, TeleopForceError
-from teleop_force.friction import friction_from_dict
 from teleop_force.friction.base import FrictionModel, JointCount
+from teleop_force.friction.model_file import friction_from_dict
 from teleop_force.identification.effects import FoundEffect, effect_from_dict, total_torque
 from teleop_force.identification.filtered_regressor import (
     FilterConfig,

@@ -21,7 +21,7 @@ import numpy as np
 
 from teleop_force.compiled import njit_cached
 from teleop_force.errors import ModelError
-from teleop_force.friction.terms import sign
+from teleop_force.friction.terms import add_weighted_into, sign
 
 
 class EffectShape(StrEnum):
@@ -289,12 +289,7 @@ def add_effects_torque_into(
         row = codes[e]
         value = effect_torque(row, floats, t, q, qd, tau, work)
         reach = row[_REACH]
-        for j in range(n):
-            weight = floats[reach + j]
-            if weight == 1.0:
-                out[j] += value
-            elif weight != 0.0:
-                out[j] += weight * value
+        add_weighted_into(value, floats[reach : reach + n], out)
 
 
 @njit_cached()

@@ -132,12 +132,15 @@ def test_residual_choices_are_the_libraries_own() -> None:
 
 
 def test_building_the_parser_does_not_import_the_residual_loop() -> None:
-    """The choices come from the light options module, not the loop (NumPy/SciPy fits)."""
+    """The choices come from the light options module, not the loop (SciPy fits, numba)."""
     code = (
         "import sys; from teleop_force.cli.main import build_parser; build_parser();"
-        " print(sorted(m for m in sys.modules if m.startswith('teleop_force.residual')))"
+        " print(sorted(m for m in sys.modules if m.startswith('teleop_force.residual')));"
+        " print(sorted(m for m in ('numba', 'scipy', 'pinocchio') if m in sys.modules))"
     )
     done = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
     )
-    assert done.stdout.strip() == "['teleop_force.residual', 'teleop_force.residual.options']"
+    residual, heavy = done.stdout.strip().splitlines()
+    assert residual == "['teleop_force.residual', 'teleop_force.residual.options']"
+    assert heavy == "[]"

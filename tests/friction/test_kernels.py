@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from numba.core import caching
 
+from teleop_force.compiled import njit_cached
 from teleop_force.friction import kernels
 from teleop_force.friction.adaptation import LyapunovAdapter
 from teleop_force.friction.batch_fit import (
@@ -157,7 +158,7 @@ def test_kernel_compiles_without_a_writable_cache(monkeypatch):
     def twice(v: float) -> float:
         return 2.0 * v
 
-    compiled = kernels._jit()(twice)
+    compiled = njit_cached()(twice)
     assert compiled(2.0) == 4.0
     assert kernels.warm_up() >= 0.0
 

@@ -13,8 +13,9 @@ import pytest
 
 from teleop_force.errors import ModelError, ModelFileError, TeleopForceError
 from teleop_force.estimation.estimator import ForceEstimator
-from teleop_force.friction import CoulombViscous, friction_from_dict
+from teleop_force.friction.coulomb_viscous import CoulombViscous
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction, distinct_axes
+from teleop_force.friction.model_file import friction_from_dict
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.robots.dvrk_mtm import dvrk_mtm_description, mtm_model_coupling
 from tests.fuzz.targets import model_seed_dicts

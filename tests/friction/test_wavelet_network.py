@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from teleop_force.errors import ConfigurationError, ModelError, ModelFileError
-from teleop_force.friction import friction_from_dict
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
+from teleop_force.friction.model_file import friction_from_dict
 from teleop_force.friction.wavelet_network import (
     WaveletJointSpec,
     WaveletNetwork,
