@@ -202,11 +202,18 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
                 v.setting: v.counts for v in variants
             } or None
             # 4-5. replay through the service, its memory, growth with length and wavelets
-            result.update(
-                _replay_part(options, palpation, bench_model.path, variants, work_dir, log)
-            )
+            result.update(_guarded_part(
+                "replay", options.replay, _REPLAY_KEYS,
+                lambda: _replay_figures(
+                    options, palpation, bench_model.path, variants, work_dir, log
+                ),
+                log,
+            ))  # fmt: skip
             # 3. messaging (the demo), the service's memory in it
-            result.update(_messaging_part(options, bench_model.path, log))
+            result.update(_guarded_part(
+                "messaging", options.messaging, _MESSAGING_KEYS,
+                lambda: _messaging_figures(options, bench_model.path, log), log,
+            ))  # fmt: skip
             result.update(_service_memory(result))
         result["bench_wall_s"] = round(total.wall_s, 2)
         result["bench_cpu_s"] = round(total.cpu_s, 2)
@@ -364,36 +371,21 @@ def _estimation_figures(
     return figures
 
 
-def _replay_part(
-    options: BenchOptions,
-    palpation: dict[str, np.ndarray],
-    model_path: Path,
-    variants: Sequence[_WaveletVariant],
-    work_dir: Path,
+def _guarded_part(
+    name: str,
+    on: bool,
+    keys: Sequence[str],
+    measure: Callable[[], dict[str, Any]],
     log: Callable[[str], None],
 ) -> dict[str, Any]:
-    """Measure the replay figures (``None`` when off; ``replay_error`` on failure)."""
-    figures: dict[str, Any] = dict.fromkeys(_REPLAY_KEYS)
-    if options.replay:
+    """Measure one part's figures (``None`` when off; ``<name>_error`` on failure)."""
+    figures: dict[str, Any] = dict.fromkeys(keys)
+    if on:
         try:
-            figures.update(_replay_figures(options, palpation, model_path, variants, work_dir, log))
+            figures.update(measure())
         except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
-            log(f"replay figures failed: {exc}")
-            figures["replay_error"] = str(exc)
-    return figures
-
-
-def _messaging_part(
-    options: BenchOptions, model_path: Path, log: Callable[[str], None]
-) -> dict[str, Any]:
-    """Measure the messaging figures (``None`` when off; ``messaging_error`` on failure)."""
-    figures = _messaging_skipped()
-    if options.messaging:
-        try:
-            figures.update(_messaging_figures(options, model_path, log))
-        except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
-            log(f"messaging figures failed: {exc}")
-            figures["messaging_error"] = str(exc)
+            log(f"{name} figures failed: {exc}")
+            figures[f"{name}_error"] = str(exc)
     return figures
 
 
@@ -509,15 +501,13 @@ _REPLAY_KEYS = (
 )  # fmt: skip
 
 
-def _messaging_skipped() -> dict[str, Any]:
-    keys = (
-        "latency_master_to_slave_p50_ms", "latency_master_to_slave_p99_ms",
-        "latency_master_to_slave_max_ms", "latency_slave_to_estimate_p50_ms",
-        "latency_slave_to_estimate_p99_ms", "latency_slave_to_estimate_max_ms",
-        "latency_end_to_end_p99_ms", "messages_lost", "service_peak_rss_mb_demo",
-        "messaging_duration_s",
-    )  # fmt: skip
-    return {key: None for key in keys} | {"messaging_ok": None, "messaging_model": None}
+_MESSAGING_KEYS = (
+    "latency_master_to_slave_p50_ms", "latency_master_to_slave_p99_ms",
+    "latency_master_to_slave_max_ms", "latency_slave_to_estimate_p50_ms",
+    "latency_slave_to_estimate_p99_ms", "latency_slave_to_estimate_max_ms",
+    "latency_end_to_end_p99_ms", "messages_lost", "service_peak_rss_mb_demo",
+    "messaging_duration_s", "messaging_ok", "messaging_model",
+)  # fmt: skip
 
 
 def add_bench_arguments(parser: argparse.ArgumentParser) -> None:

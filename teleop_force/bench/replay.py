@@ -26,18 +26,21 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from teleop_force.bench.measure import stopwatch
 from teleop_force.process.memory import peak_rss_mb, resident_memory_mb
+
+if TYPE_CHECKING:
+    from teleop_force.service.force_service import ForceService
 
 #: Longest wait for the service to catch up after the last publication [s].
 _CATCH_UP_S = 120.0
 
 
-def _handled(service: Any) -> int:
+def _handled(service: ForceService) -> int:
     """Joint states the service is done with: estimated and published, or failed."""
-    return int(getattr(service, "published", 0)) + int(getattr(service, "estimate_errors", 0))
+    return service.estimates.published + service.estimates.errors
 
 
 def replay_job(session_path: Path, model_path: Path) -> dict[str, Any]:

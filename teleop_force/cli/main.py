@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeAlias
 
@@ -293,14 +293,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     result = run_bench(options_from_args(args), log=_log)
     print(json.dumps(result) if args.json else format_table(result))
     return EXIT_OK
-
-
-def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
-    def run(args: argparse.Namespace) -> int:
-        _log(f"teleop-force {name}: not implemented yet")
-        return 1
-
-    return run
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,7 +16,8 @@ from time import perf_counter
 from typing import Any
 
 from teleop_force.io.interchange_csv import Recording
-from teleop_force.residual.loop import ResidualOptions, trace_residual
+from teleop_force.residual.loop import trace_residual
+from teleop_force.residual.options import ResidualOptions
 from teleop_force.robots.omni import omni_description
 from teleop_force.simulation import EFFECT_NAMES, make_effect, rigid_body_protocol
 

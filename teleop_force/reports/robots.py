@@ -616,10 +616,8 @@ def _mtm_verdicts(rows: dict[str, dict[str, Any]]) -> list[str]:
     return lines
 
 
-def _mtm_effect_tables(found: dict[str, list[dict[str, Any]]] | list[dict[str, Any]]) -> list[str]:
+def _mtm_effect_tables(found: dict[str, list[dict[str, Any]]]) -> list[str]:
     """Return one table per residual-loop run of the effects it found (none if it found none)."""
-    if isinstance(found, list):  # a report written before the model-coordinate baseline
-        found = {"wn + found effects": found}
     lines: list[str] = []
     for label, traced in found.items():
         if traced:

@@ -63,7 +63,7 @@ from teleop_force.residual.scoring import (
 )
 from teleop_force.robots.description import RobotDescription
 
-__all__ = ["ResidualOptions", "ResidualReport", "TracedEffect", "trace_residual"]
+__all__ = ["trace_residual"]
 
 
 @dataclass(frozen=True, eq=False)

@@ -316,7 +316,8 @@ def test_shared_mtm_residual_loop_on_model_coordinate_friction_transfers():
         MTM_PUBLISHED_RELATIVE_ERROR,
         _zero_phase_relative_rms,
     )
-    from teleop_force.residual.loop import ResidualOptions, trace_residual
+    from teleop_force.residual.loop import trace_residual
+    from teleop_force.residual.options import ResidualOptions
 
     folder = require("dvrk_mtm")
     train = read_mtm_csv(folder / "mtm_traj_one_results.csv").recording
