@@ -47,9 +47,19 @@ class Baseline:
     network: FrictionModel | None
 
     @property
+    def rigid_count(self) -> int:
+        """Number of rigid-body (base) parameters: the first columns of every fit."""
+        return 0 if self.base is None else self.base.count
+
+    @property
+    def friction_count(self) -> int:
+        """Number of friction parameters: the columns after the rigid body's."""
+        return int(sum(self.friction.parameter_counts()))
+
+    @property
     def rigid_values(self) -> np.ndarray:
         """The stage-one rigid-body (base) parameters."""
-        return self.parameters[: 0 if self.base is None else self.base.count]
+        return self.parameters[: self.rigid_count]
 
 
 def fit_baseline(
@@ -144,8 +154,7 @@ def final_model(
     theta = fit.parameters
     n = description.n_joints
     friction = baseline.friction
-    r = 0 if baseline.base is None else baseline.base.count
-    p_f = int(sum(friction.parameter_counts()))
+    r, p_f = baseline.rigid_count, baseline.friction_count
     friction.parameters = theta[r : r + p_f].copy()
     col = r + p_f
     offsets_nm = np.zeros(n)
@@ -185,8 +194,7 @@ def _final_fit(
     n = description.n_joints
     friction = baseline.friction
     base = baseline.base
-    p_f = int(sum(friction.parameter_counts()))
-    r = 0 if base is None else base.count
+    r, p_f = baseline.rigid_count, baseline.friction_count
     total = r + p_f + (n if baseline.offsets else 0) + int(sum(e.spec.size for e in accepted))
     blocks, torques = [], []
     for item in baseline.prepared:
