@@ -19,18 +19,22 @@ of the same sample (as the batch does) and ``t`` as the time since the stream's 
 (the batch: since the recording's).
 
 Speed: one sample is three-vectors, where NumPy's per-call overhead (~1 µs) dwarfs the
-arithmetic. So the filters and the 3 x 3 ``J^-T`` run on Python floats, and the model's terms
-run compiled (numba, :mod:`teleop_force.estimation.kernels`): friction (Coulomb-viscous
-terms, or the wavelet network blended with its fallback by the coverage trust), offsets and
-found effects in one call per sample, with the single definitions the batch fit uses
-(:mod:`teleop_force.friction.terms`, :mod:`teleop_force.identification.effect_terms`); the
-coupling and the rigid-body terms around pinocchio's four calls in two more. See
-BENCHMARKS.md for the figures.
+arithmetic. So a sample crosses into compiled code twice (numba,
+:mod:`teleop_force.estimation.kernels`), around pinocchio's four calls (``crba``, Coriolis
+matrix, gravity, tip Jacobian): :func:`~teleop_force.estimation.kernels.prefilter_step`
+(checks, ``L_v``, the velocity) and :func:`~teleop_force.estimation.kernels.finish_step`
+(rigid body, ``L``, friction with the coverage blend, offsets, found effects, ``J^-T``), on
+preallocated arrays, with the single definitions the batch fit uses
+(:mod:`teleop_force.friction.terms`, :mod:`teleop_force.identification.effect_terms`).
+:meth:`ForceEstimator.step` returns the output array itself (the service encodes from it);
+:meth:`ForceEstimator.update` wraps it in a :class:`ForceEstimate`. See BENCHMARKS.md for the
+figures.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,10 +42,15 @@ import pinocchio as pin
 
 from teleop_force.errors import DataError, SingularityError
 from teleop_force.estimation.kernels import (
+    STATE_HEAD,
+    STEP_NON_FINITE,
+    STEP_OK,
     ModelTerms,
-    linear_map_into,
-    rigid_terms_into,
+    finish_step,
+    output_size,
+    prefilter_step,
     spring_table,
+    state_size,
 )
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.regressor import full_parameters
@@ -52,7 +61,8 @@ DEFAULT_SIGMA_MIN = 5e-3
 #: Coverage weight at or above which a joint counts as on trained ground.
 TRAINED_GROUND_WEIGHT = 0.5
 _TWO_PI = 2.0 * math.pi
-_NAN3_LIST = [math.nan] * 3
+_NO_MATRIX = np.zeros((0, 0))
+_NO_VECTOR = np.zeros(0)
 
 
 @dataclass(frozen=True)
@@ -82,83 +92,14 @@ class ForceEstimate:
     singular: bool
 
 
-class _RigidBody:
-    """Momentum, ``-C^T qd + N + tau_spring`` and the tip Jacobian at one sample (compiled)."""
+class _PinocchioTerms:
+    """The pinocchio model and data of the equivalent rigid body, and the tip frame."""
 
-    def __init__(self, robot: Robot, spring_stiffness: np.ndarray) -> None:
-        self.robot = robot
+    def __init__(self, robot: Robot) -> None:
         self.model = robot.model
         self.data = robot.model.createData()
-        self.n = n = robot.n
-        n_model = robot.model.nv  # > n for a closed chain written as a tree (T is n_model x n)
-        self.coupling = np.ascontiguousarray(robot.coupling, dtype=float)
-        self._identity = n_model == n and bool(np.array_equal(self.coupling, np.eye(n)))
-        self.rotor = np.ascontiguousarray(robot.description.rotor_inertia_kgm2, dtype=float)
-        springs = robot.description.springs
-        self.springs = spring_table(
-            [s.joint for s in springs], spring_stiffness, [s.rest_angle_rad for s in springs]
-        )
-        #: ``[q (n), qd (n), momentum (n), other (n)]``
-        self._state = np.zeros(4 * n)
-        self._out = slice(2 * n, 4 * n)
-        identity = self._identity
-        # pinocchio's angles and velocities in model coordinates (views of the state for T = I)
-        self._q_model = self._state[:n] if identity else np.zeros(n_model)
-        self._v_model = self._state[n : 2 * n] if identity else np.zeros(n_model)
-        self._q_motor = np.zeros(n)
-        self._q_jacobian = self._q_motor if identity else np.zeros(n_model)
         tip_frame = robot.description.tip_frame
-        self.tip = None if tip_frame is None else robot.model.getFrameId(tip_frame)
-
-    def terms(self, q: list[float], qd: list[float]) -> tuple[list[float], list[float]]:
-        """``M(q) qd`` and ``-C(q, qd)^T qd + N(q) + tau_spring(q)`` in motor coordinates."""
-        model, data, state, n = self.model, self.data, self._state, self.n
-        state[: 2 * n] = q + qd
-        q_model, v_model = self._q_model, self._v_model
-        if not self._identity:
-            linear_map_into(self.coupling, state[:n], q_model)
-            linear_map_into(self.coupling, state[n : 2 * n], v_model)
-        mass = pin.crba(model, data, q_model)  # upper triangle is valid
-        coriolis = pin.computeCoriolisMatrix(model, data, q_model, v_model)
-        gravity = pin.computeGeneralizedGravity(model, data, q_model)
-        rigid_terms_into(
-            state, v_model, mass, coriolis, gravity, self.coupling, self.rotor, self.springs
-        )
-        out = state[self._out].tolist()
-        return out[:n], out[n:]
-
-    def jacobian(self, q: list[float]) -> list[list[float]]:
-        """Return the translational tip Jacobian ``d p / d q_motor`` (3 x n) at angles ``q``."""
-        self._q_motor[:] = q
-        if not self._identity:
-            linear_map_into(self.coupling, self._q_motor, self._q_jacobian)
-        j6 = pin.computeFrameJacobian(
-            self.model, self.data, self._q_jacobian, self.tip, pin.LOCAL_WORLD_ALIGNED
-        )
-        # J_motor = J_model T
-        return (j6[:3] if self._identity else j6[:3] @ self.coupling).tolist()
-
-    def tip_force(self, q: list[float], tau_ext: list[float], sigma_min: float) -> list[float]:
-        """``F`` with ``J^T F = tau_ext`` for three joints (raise SingularityError)."""
-        j = self.jacobian(q)
-        (a, b, c), (d, e, f), (g, h, i) = j
-        # first row of cofactors of J
-        c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g
-        det = a * c00 + b * c01 + c * c02
-        frob = a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i
-        # sigma_min >= |det| / sigma_max^2 >= |det| / ||J||_F^2: only near a singularity
-        # are the singular values needed (LAPACK, as Robot.tip_force_from_joint_torque)
-        if not abs(det) > sigma_min * frob:
-            smallest = float(np.linalg.svd(np.asarray(j), compute_uv=False)[-1])
-            if smallest < sigma_min or det == 0.0:
-                raise SingularityError(smallest, sigma_min)
-        t0, t1, t2 = tau_ext
-        # F = (J^T)^-1 tau = (J^-1)^T tau = cof(J) tau / det J
-        return [
-            (c00 * t0 + c01 * t1 + c02 * t2) / det,
-            ((c * h - b * i) * t0 + (a * i - c * g) * t1 + (b * g - a * h) * t2) / det,
-            ((b * f - c * e) * t0 + (c * d - a * f) * t1 + (a * e - b * d) * t2) / det,
-        ]
+        self.tip = -1 if tip_frame is None else robot.model.getFrameId(tip_frame)
 
 
 class ForceEstimator:
@@ -184,21 +125,121 @@ class ForceEstimator:
             )
             self.spring_stiffness = full[n_links + self.n :]
             self.robot = Robot(equivalent)
-        self._rigid = None if self.robot is None else _RigidBody(self.robot, self.spring_stiffness)
+        self._rigid = None if self.robot is None else _PinocchioTerms(self.robot)
         self._has_tip = self.robot is not None and self.robot.description.tip_frame is not None
+        #: whether the compiled step computes ``F`` (three joints); else :class:`Robot` does
+        self._tip_kernel = self._has_tip and self.n == 3
         self._terms = ModelTerms(model)
         config = model.filter_config
-        self._lag = config.torque_lag_samples
+        self._lag = int(config.torque_lag_samples)
         self._omega_v = _TWO_PI * config.velocity_cutoff_hz
         self._omega = _TWO_PI * config.cutoff_hz
+        self._allocate()
         self.reset()
+
+    def _allocate(self) -> None:
+        """Preallocate the step's state, inputs, pinocchio inputs and outputs."""
+        n = self.n
+        robot = self.robot
+        coupling = np.eye(n) if robot is None else robot.coupling
+        self._coupling = np.ascontiguousarray(coupling, dtype=float)
+        n_model = self._coupling.shape[0]
+        self._rotor = (
+            np.zeros(n)
+            if robot is None
+            else np.ascontiguousarray(robot.description.rotor_inertia_kgm2, dtype=float)
+        )
+        springs = [] if robot is None else robot.description.springs
+        self._springs = spring_table(
+            [s.joint for s in springs], self.spring_stiffness, [s.rest_angle_rad for s in springs]
+        )
+        self._state = np.zeros(state_size(n))
+        self._qd_slice = slice(STATE_HEAD + 7 * n, STATE_HEAD + 8 * n)
+        self._sample = np.zeros(1 + 2 * n)
+        self._q_model = np.zeros(n_model)
+        self._v_model = np.zeros(n_model)
+        self._q_jacobian = np.zeros(n_model)
+        self._jacobian_motor = np.zeros((3, 3))
+        self._scratch = np.zeros(7 * n + self._terms.work.size)
+        self._out = np.zeros(output_size(n))
 
     def reset(self) -> None:
         """Forget all filter state (start of a new stream)."""
-        self._t_prev: float | None = None
-        self._t_first = 0.0
-        self._stage1: list[float] = []  # L_v(q), L_v(tau)
-        self._stage2: list[float] = []  # L of M qd, -C^T qd + N + springs, the rest, L_v(tau)
+        self._state[:] = 0.0
+
+    def step(
+        self, t_s: float, q_rad: Sequence[float] | np.ndarray, tau_nm: Sequence[float] | np.ndarray
+    ) -> np.ndarray:
+        """Feed one sample; return the step's output array (overwritten by the next call).
+
+        ``[F (3), tau_ext (n), tau_motor_filtered (n), tau_model_filtered (n), coverage
+        weight (n), singular (0/1)]``: the fields of :class:`ForceEstimate` without copies, for
+        callers at 1 kHz (the service). Raises DataError on a bad sample (state untouched).
+        """
+        n = self.n
+        sample = self._sample
+        try:
+            sample[0] = t_s
+            sample[1 : 1 + n] = q_rad
+            sample[1 + n :] = tau_nm
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"expected {n} joint angles and torques: {exc}") from exc
+        code = prefilter_step(
+            self._state, sample, self._omega_v, self._coupling, self._q_model, self._v_model,
+            self._q_jacobian,
+        )  # fmt: skip
+        if code != STEP_OK:
+            raise self._step_error(code, t_s)
+        rigid = self._rigid
+        if rigid is not None:
+            model, data = rigid.model, rigid.data
+            mass = pin.crba(model, data, self._q_model)  # upper triangle is valid
+            coriolis = pin.computeCoriolisMatrix(model, data, self._q_model, self._v_model)
+            gravity = pin.computeGeneralizedGravity(model, data, self._q_model)
+            jacobian = (
+                pin.computeFrameJacobian(
+                    model, data, self._q_jacobian, rigid.tip, pin.LOCAL_WORLD_ALIGNED
+                )
+                if self._tip_kernel
+                else _NO_MATRIX
+            )
+        else:
+            mass = coriolis = jacobian = _NO_MATRIX
+            gravity = _NO_VECTOR
+        terms = self._terms
+        extra = _NO_VECTOR
+        if terms.python_friction:
+            qd = self._state[self._qd_slice]
+            torque, weight = terms.python_terms(qd)
+            extra = np.concatenate((torque, weight))
+        out = self._out
+        finish_step(
+            self._state, sample, self._omega, self._lag, rigid is not None, self._v_model,
+            mass, coriolis, gravity, self._coupling, self._rotor, self._springs,
+            self._tip_kernel, jacobian, self._jacobian_motor, self.sigma_min, extra,
+            self._scratch, out, *terms.arguments(),
+        )  # fmt: skip
+        if self._has_tip and not self._tip_kernel:
+            self._tip_force_python(q_rad, out)
+        return out
+
+    def _step_error(self, code: int, t_s: float) -> DataError:
+        if code == STEP_NON_FINITE:
+            return DataError("non-finite joint angle, torque or time")
+        return DataError(f"time does not increase ({t_s} after {self._state[1]})")
+
+    def _tip_force_python(self, q_rad: Sequence[float] | np.ndarray, out: np.ndarray) -> None:
+        """``F`` of a robot other than three joints (least squares, :class:`Robot`)."""
+        n = self.n
+        assert self.robot is not None
+        try:
+            out[:3] = self.robot.tip_force_from_joint_torque(
+                np.asarray(q_rad, dtype=float), out[3 : 3 + n].copy(), self.sigma_min
+            )
+            out[3 + 4 * n] = 0.0
+        except SingularityError:
+            out[:3] = math.nan
+            out[3 + 4 * n] = 1.0
 
     def update(self, t_s: float, q_rad: np.ndarray, tau_nm: np.ndarray) -> ForceEstimate:
         """Feed one sample (time, measured angles, commanded motor torques)."""
@@ -207,96 +248,15 @@ class ForceEstimator:
         tau_arr = np.asarray(tau_nm, dtype=float)
         if q_arr.shape != (n,) or tau_arr.shape != (n,):
             raise DataError(f"expected {n} joint angles and torques")
-        q_raw = q_arr.tolist()
-        tau = tau_arr.tolist()
-        t_s = float(t_s)
-        if not math.isfinite(sum(q_raw) + sum(tau) + t_s) and not (
-            all(map(math.isfinite, q_raw)) and all(map(math.isfinite, tau)) and math.isfinite(t_s)
-        ):
-            raise DataError("non-finite joint angle, torque or time")
-        # stage 1: the pre-filter L_v of the angles and torques; velocity of the filtered angles
-        t_prev = self._t_prev
-        first = t_prev is None
-        if first:
-            dt = 1e-3
-            stage1 = q_raw + tau
-            qd = [0.0] * n
-            self._t_first = t_s
-        else:
-            dt = t_s - t_prev  # type: ignore[operator]
-            if not dt > 0:
-                raise DataError(f"time does not increase ({t_s} after {t_prev})")
-            a = math.exp(-self._omega_v * dt)
-            b = 1.0 - a
-            previous = self._stage1
-            stage1 = [a * s + b * x for s, x in zip(previous, q_raw + tau, strict=True)]
-            qd = [(stage1[i] - previous[i]) / dt for i in range(n)]
-        self._t_prev = t_s
-        self._stage1 = stage1
-        q = stage1[:n]
-        tau_v = stage1[n:]
-
-        # the model's terms at this sample
-        rigid = self._rigid
-        if rigid is not None:
-            momentum, terms = rigid.terms(q, qd)
-        else:
-            momentum = terms = [0.0] * n
-
-        # stage 2: the filter L of [M qd, -C^T qd + N + springs, other terms, L_v(tau)];
-        # D_L(M qd) + L(-C^T qd + N + springs) is the filtered rigid-body torque, the load
-        # that found effects on ``tau<j>`` read (DynamicModel.predict_filtered_torque)
-        if first:
-            head = momentum + terms
-            derivative = [0.0] * n
-        else:
-            a = math.exp(-self._omega * dt)
-            b = 1.0 - a
-            previous = self._stage2
-            x_head = momentum + terms
-            head = [a * s + b * x for s, x in zip(previous[: 2 * n], x_head, strict=True)]
-            derivative = [(head[i] - previous[i]) / dt for i in range(n)]
-        load = [derivative[i] + head[n + i] for i in range(n)]
-        # friction + offsets + found effects (which read the load) in one compiled call
-        other, weight = self._terms(t_s - self._t_first, q, qd, load)
-        if first:
-            tail = other + tau_v
-            tau_filtered = tau_v
-        else:
-            x_tail = other + tau_v
-            tail = [a * s + b * x for s, x in zip(previous[2 * n :], x_tail, strict=True)]
-            tau_filtered = tail[n:] if self._lag == 0 else previous[3 * n :]
-        self._stage2 = head + tail
-        tau_model = [load[i] + tail[i] for i in range(n)]
-        tau_ext = [x - m for x, m in zip(tau_filtered, tau_model, strict=True)]
-
-        force: list[float] | np.ndarray = _NAN3_LIST
-        singular = False
-        if self._has_tip:
-            assert rigid is not None and self.robot is not None
-            try:
-                if n == 3:
-                    force = rigid.tip_force(q_raw, tau_ext, self.sigma_min)
-                else:
-                    force = self.robot.tip_force_from_joint_torque(
-                        q_arr, np.asarray(tau_ext), self.sigma_min
-                    )
-            except SingularityError:
-                singular = True
-        if n == 3:
-            block = np.array((tau_ext, tau_filtered, tau_model, weight, force))
-            force_row = block[4]
-        else:
-            block = np.array((tau_ext, tau_filtered, tau_model, weight))
-            force_row = np.array(force, dtype=float)
-        coverage = block[3]
+        out = self.step(float(t_s), q_arr, tau_arr).copy()
+        coverage = out[3 + 3 * n : 3 + 4 * n]
         return ForceEstimate(
-            t_s,
-            force_row,
-            block[0],
-            block[1],
-            block[2],
+            float(t_s),
+            out[:3],
+            out[3 : 3 + n],
+            out[3 + n : 3 + 2 * n],
+            out[3 + 2 * n : 3 + 3 * n],
             coverage,
             coverage >= TRAINED_GROUND_WEIGHT,
-            singular,
+            bool(out[3 + 4 * n]),
         )

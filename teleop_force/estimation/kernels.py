@@ -1,24 +1,34 @@
-"""One-sample evaluation of a model's terms for the streaming estimator (compiled, numba).
+"""The compiled estimator step (numba): every per-sample term of the model, no Python per term.
 
-At 1 kHz the estimator evaluates every term of the model on *one* sample. The terms are the
-single definitions of :mod:`teleop_force.friction.terms` and
-:mod:`teleop_force.identification.effect_terms`, which the batch methods call too; here they
-are called once per sample from one compiled function (:func:`model_terms_into`), with the
-model encoded in arrays (term tables, wavelet table, coverage grids, effect codes), so that
-no Python dispatch per term remains:
+At 1 kHz the estimator evaluates the whole model on *one* sample, where NumPy's per-call
+overhead (~1 µs) would dwarf the arithmetic. So a sample crosses into compiled code twice,
+around pinocchio's calls (which stay outside, :class:`~teleop_force.estimation.estimator.
+ForceEstimator`):
 
-* :class:`ModelTerms`: friction (Coulomb-viscous term tables, or a wavelet network blended
-  with its Coulomb-viscous fallback by the coverage trust), offsets and found effects;
-* :func:`rigid_terms_into`: ``T^T M T qd + rotor qd`` and ``T^T (g - C^T T qd) + springs``
-  from pinocchio's model-coordinate ``M``, ``C``, ``g`` (``T``: the joint coupling);
-* :func:`linear_map_into`: ``matrix @ x`` of a small matrix.
+* :func:`prefilter_step`: checks the sample, runs the pre-filter ``L_v`` on the angles and
+  torques and the backward difference of the filtered angles, and writes pinocchio's inputs
+  (model-coordinate angles and velocities, the raw angles for the Jacobian);
+* :func:`finish_step`: the rigid-body terms from pinocchio's ``M``, ``C``, ``g``
+  (:func:`rigid_terms_into`), the second filter ``L``, friction (Coulomb-viscous term tables,
+  or a wavelet network blended with its fallback by the coverage trust), offsets and found
+  effects (:func:`add_model_terms`), the external torque and ``F = J^-T tau_ext``
+  (:func:`tip_force_into`).
 
-Friction or effect classes without a term encoding are evaluated by their own vectorised
-methods on a one-row array, so the estimator stays correct for every model.
+The terms are the single definitions of :mod:`teleop_force.friction.terms` and
+:mod:`teleop_force.identification.effect_terms`, which the batch methods call too; the model
+is encoded in arrays (term tables, wavelet table, coverage grids, effect codes) by
+:class:`ModelTerms`, which also follows later changes of the model (online adaptation, a new
+coverage count). Nothing is allocated per sample in compiled code: state, inputs and outputs
+are preallocated arrays.
+
+Friction classes without a term encoding are evaluated by their own vectorised methods on a
+one-row array between the two steps (passed in as ``extra``), so the estimator stays correct
+for every model.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -39,8 +49,81 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effect_terms import add_effects_torque_into
 from teleop_force.identification.effects import effects_table
 
-#: Friction modes of :func:`model_terms_into`.
+#: Friction modes of :func:`add_model_terms`.
 FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK = 0, 1, 2
+#: Status codes of :func:`prefilter_step`.
+STEP_OK, STEP_NON_FINITE, STEP_TIME_NOT_INCREASING = 0, 1, 2
+#: Slots of the estimator state before the filter states: has a previous sample, its time,
+#: the stream's first time.
+STATE_HEAD = 3
+
+
+def state_size(n: int) -> int:
+    """Length of the estimator state: head, ``L_v`` state (2 n), ``L`` state (4 n), q, qd."""
+    return STATE_HEAD + 8 * n
+
+
+def output_size(n: int) -> int:
+    """Length of the step's output ``[F (3), tau_ext, tau_L, tau_model, weight, singular]``."""
+    return 4 + 4 * n
+
+
+# -- the model's terms at one sample -----------------------------------------------------------
+
+
+@njit_cached()
+def add_model_terms(
+    t: float,
+    q: np.ndarray,
+    qd: np.ndarray,
+    load: np.ndarray,
+    other: np.ndarray,
+    weight: np.ndarray,
+    network: np.ndarray,
+    work: np.ndarray,
+    mode: int,
+    offsets: np.ndarray,
+    linear_table: np.ndarray,
+    linear_parameters: np.ndarray,
+    wavelet_inputs: np.ndarray,
+    wavelet_table: np.ndarray,
+    wavelet_runs: np.ndarray,
+    wavelet_psi: np.ndarray,
+    grid_ints: np.ndarray,
+    grid_floats: np.ndarray,
+    grid_values: np.ndarray,
+    effect_codes: np.ndarray,
+    effect_floats: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Write friction + offsets + found effects to ``other`` and the coverage trust to ``weight``.
+
+    ``mode``: no friction, a Coulomb-viscous term table (``linear_table`` = ``[rows | reach]``,
+    (T, 2 n)), or a wavelet table blended with its fallback term table by the trust of the
+    coverage grids (``grid_ints`` with no rows: trust 1). ``network`` (n) and ``work`` are
+    scratch.
+    """
+    n = q.size
+    for j in range(n):
+        other[j] = 0.0
+        weight[j] = 1.0
+    rows = linear_table[:, :n]
+    reach = linear_table[:, n:]
+    if mode == FRICTION_LINEAR:
+        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
+    elif mode == FRICTION_NETWORK:
+        for j in range(n):
+            network[j] = 0.0
+        wavelet_network_torque_into(
+            qd, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, network
+        )
+        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)  # the fallback
+        if grid_ints.shape[0] > 0:
+            coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
+        for j in range(n):
+            other[j] = trust_blend(weight[j], network[j], other[j])
+    for j in range(n):
+        other[j] += offsets[j]
+    add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
 
 
 @njit_cached()
@@ -53,47 +136,22 @@ def model_terms_into(
     linear_parameters: np.ndarray,
     wavelet_inputs: np.ndarray,
     wavelet_table: np.ndarray,
+    wavelet_runs: np.ndarray,
+    wavelet_psi: np.ndarray,
     grid_ints: np.ndarray,
     grid_floats: np.ndarray,
     grid_values: np.ndarray,
     effect_codes: np.ndarray,
     effect_floats: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """Friction + offsets + found effects, and the coverage trust, at one sample.
-
-    ``io``: ``[t, q (n), qd (n), load (n)]`` in, then ``[other (n), weight (n)]`` out, then
-    scratch (:meth:`ModelTerms.io_size`). ``mode``: no friction, a Coulomb-viscous term
-    table (``linear_table`` = ``[rows | reach]``, (T, 2 n)), or a wavelet table blended with
-    its fallback term table by the trust of the coverage grids (``grid_ints`` with no rows:
-    trust 1).
-    """
-    t = io[0]
-    q = io[1 : 1 + n]
-    qd = io[1 + n : 1 + 2 * n]
-    load = io[1 + 2 * n : 1 + 3 * n]
-    other = io[1 + 3 * n : 1 + 4 * n]
-    weight = io[1 + 4 * n : 1 + 5 * n]
-    network = io[1 + 5 * n : 1 + 6 * n]
-    work = io[1 + 6 * n :]
-    for j in range(n):
-        other[j] = 0.0
-        weight[j] = 1.0
-    rows = linear_table[:, :n]
-    reach = linear_table[:, n:]
-    if mode == FRICTION_LINEAR:
-        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
-    elif mode == FRICTION_NETWORK:
-        for j in range(n):
-            network[j] = 0.0
-        wavelet_network_torque_into(qd, wavelet_inputs, wavelet_table, network)
-        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)  # the fallback
-        if grid_ints.shape[0] > 0:
-            coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
-        for j in range(n):
-            other[j] = trust_blend(weight[j], network[j], other[j])
-    for j in range(n):
-        other[j] += offsets[j]
-    add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
+    """:func:`add_model_terms` on ``io``: ``[t, q, qd, load]`` in, ``[other, weight]`` out."""
+    add_model_terms(
+        io[0], io[1 : 1 + n], io[1 + n : 1 + 2 * n], io[1 + 2 * n : 1 + 3 * n],
+        io[1 + 3 * n : 1 + 4 * n], io[1 + 4 * n : 1 + 5 * n], io[1 + 5 * n : 1 + 6 * n],
+        io[1 + 6 * n :], mode, offsets, linear_table, linear_parameters, wavelet_inputs,
+        wavelet_table, wavelet_runs, wavelet_psi, grid_ints, grid_floats, grid_values,
+        effect_codes, effect_floats,
+    )  # fmt: skip
 
 
 class _CoverageGrids:
@@ -115,39 +173,41 @@ class _CoverageGrids:
             self.floats[j, :2] = (config.untrained_density, config.trained_density)
             self.floats[j, 2 : 2 + d] = lo
             self.floats[j, 2 + dmax : 2 + dmax + d] = cell
-        self._seen: list[np.ndarray | None] = [None] * n
+        self.version = -1
         self.values = np.zeros(0)
 
     def refresh(self) -> None:
-        """Re-read the density grids if any changed (new counts)."""
-        coverage, seen = self.coverage, self._seen
-        for j in range(len(seen)):
-            if coverage.density_grid(j) is not seen[j]:
-                break
-        else:
+        """Re-read the density grids if the counts changed."""
+        coverage = self.coverage
+        if coverage.version == self.version:
             return
         chunks = []
         offset = 0
-        for j in range(len(seen)):
-            grid = coverage.density_grid(j)
-            seen[j] = grid
+        for j in range(coverage.n_joints):
             self.ints[j, 1] = offset
-            chunks.append(np.asarray(grid, dtype=float).reshape(-1))
+            chunks.append(np.asarray(coverage.density_grid(j), dtype=float).reshape(-1))
             offset += chunks[-1].size
         self.values = np.ascontiguousarray(np.concatenate(chunks))
+        self.version = coverage.version
 
 
 _UNSET = object()
 _NO_INTS = np.zeros((0, 4), dtype=np.int64)
 _NO_FLOATS = np.zeros((0, 4))
 _NO_VALUES = np.zeros(0)
+_NO_LINEAR = np.zeros((0, 2))
+_NO_PARAMETERS = np.zeros(0)
+_NO_WAVELET_INPUTS = np.zeros((0, 1), dtype=np.int64)
+_NO_RUNS = np.zeros((0, 2), dtype=np.int64)
 
 
 class ModelTerms:
-    """Friction, offsets and found effects of a model at one sample, in one compiled call.
+    """A model's friction, offsets and found effects encoded for :func:`add_model_terms`.
 
-    Follows later changes of the model's friction: new parameters (read live), a network's
-    new structure or coefficients, a replaced fallback or coverage map, new coverage counts.
+    :meth:`arguments` gives the kernel's arguments for the next sample, following later
+    changes of the model's friction: new parameters (read live), a network's new structure or
+    coefficients, a replaced fallback or coverage map, new coverage counts. Calling the object
+    evaluates one sample (tests and one-off use; the estimator calls the step kernels).
     """
 
     def __init__(self, model: DynamicModel) -> None:
@@ -156,15 +216,30 @@ class ModelTerms:
         self.n = n = model.n_joints
         self.friction = model.friction
         table = effects_table(model.effects, n)
-        self._effect_codes, self._effect_floats = table.codes, table.floats
-        self.io = np.zeros(1 + 6 * n + table.work.size)
+        self.effect_codes, self.effect_floats = table.codes, table.floats
+        self.work = np.zeros(table.work.size)
+        self._io = np.zeros(1 + 6 * n + table.work.size)
         self._out = slice(1 + 3 * n, 1 + 5 * n)
-        self._network = self.friction if isinstance(self.friction, WaveletNetwork) else None
-        self._linear = None if self._network is not None else _term_table(self.friction, n)
+        self.network = self.friction if isinstance(self.friction, WaveletNetwork) else None
+        self._linear = None if self.network is not None else _term_table(self.friction, n)
+        #: Whether the friction has no term encoding (evaluated in Python, :meth:`python_friction`).
+        self.python_friction = self.network is None and self._linear is None
         self._fallback: Any = _UNSET  # what the tables below were built for
-        self._coverage: object = _UNSET
+        self._coverage: Any = _UNSET
         self._grids: _CoverageGrids | None = None
         self._fallback_table = np.zeros((0, 2 * n))
+        self._network_arguments: tuple[Any, ...] | None = None
+        self._psi = np.zeros(0)  # the wavelets' scratch
+        self._versions: tuple[int, int, int] = (-1, -1, -1)
+        self._fixed: tuple[Any, ...] = (
+            FRICTION_NONE if self._linear is None else FRICTION_LINEAR,
+            model.offsets_nm,
+            _NO_LINEAR if self._linear is None else self._linear,
+            _NO_PARAMETERS if self._linear is None else self.friction.parameters,
+            _NO_WAVELET_INPUTS, _NO_FLOATS, _NO_RUNS, _NO_VALUES, _NO_INTS, _NO_FLOATS,
+            _NO_VALUES,
+            self.effect_codes, self.effect_floats,
+        )  # fmt: skip
 
     def _refresh_network(self, network: WaveletNetwork) -> None:
         """(Re)build the tables of the network's fallback and coverage map."""
@@ -178,6 +253,51 @@ class ModelTerms:
         coverage = network.coverage
         self._coverage = coverage
         self._grids = None if coverage is None else _CoverageGrids(coverage)
+        self._versions = (-1, -1, -1)
+
+    def arguments(self) -> tuple[Any, ...]:
+        """Return the model's arguments of :func:`add_model_terms` (``mode`` ... the effects)."""
+        network = self.network
+        if network is None:
+            if self._linear is not None and self._fixed[3] is not self.friction.parameters:
+                fixed = list(self._fixed)
+                fixed[3] = self.friction.parameters
+                self._fixed = tuple(fixed)
+            return self._fixed
+        if network.fallback is not self._fallback or network.coverage is not self._coverage:
+            self._refresh_network(network)
+        grids = self._grids
+        coverage_version = -1 if grids is None else grids.coverage.version
+        versions = (network.structure_version, network.coef_version, coverage_version)
+        arguments = self._network_arguments
+        if arguments is None or versions != self._versions:
+            if grids is not None:
+                grids.refresh()
+                grid_ints, grid_floats, values = grids.ints, grids.floats, grids.values
+            else:
+                grid_ints, grid_floats, values = _NO_INTS, _NO_FLOATS, _NO_VALUES
+            inputs, wavelets, runs = network.streaming_table()
+            if self._psi.size != inputs.shape[0]:
+                self._psi = np.zeros(inputs.shape[0])
+            self._versions = versions
+            arguments = self._network_arguments = (
+                FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
+                self._fallback.parameters, inputs, wavelets, runs, self._psi, grid_ints,
+                grid_floats, values,
+                self.effect_codes, self.effect_floats,
+            )  # fmt: skip
+        elif arguments[3] is not self._fallback.parameters:
+            self._network_arguments = None
+            return self.arguments()
+        return arguments
+
+    def python_terms(self, qd: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Friction torque and coverage weight (n each) of a friction without term encoding."""
+        row = np.asarray([qd], dtype=float)
+        return (
+            np.ascontiguousarray(self.model.friction_torque(row)[0], dtype=float),
+            np.ascontiguousarray(self.friction.coverage_weight(row)[0], dtype=float),
+        )
 
     def __call__(
         self, t: float, q: Sequence[float], qd: Sequence[float], load: Sequence[float]
@@ -188,47 +308,16 @@ class ModelTerms:
         model torque (the effects' ``tau<j>``).
         """
         n = self.n
-        io = self.io
+        io = self._io
         io[: 1 + 3 * n] = [t, *q, *qd, *load]
-        network = self._network
-        friction = self.friction
-        python_friction = False
-        if network is not None:
-            if network.fallback is not self._fallback or network.coverage is not self._coverage:
-                self._refresh_network(network)
-            grids = self._grids
-            if grids is not None:
-                grids.refresh()
-                grid_ints, grid_floats, values = grids.ints, grids.floats, grids.values
-            else:
-                grid_ints, grid_floats, values = _NO_INTS, _NO_FLOATS, _NO_VALUES
-            inputs, wavelets = network.streaming_table()
-            model_terms_into(
-                io, n, FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
-                self._fallback.parameters, inputs, wavelets, grid_ints, grid_floats, values,
-                self._effect_codes, self._effect_floats,
-            )  # fmt: skip
-        else:
-            linear = self._linear
-            python_friction = linear is None
-            model_terms_into(
-                io, n, FRICTION_NONE if python_friction else FRICTION_LINEAR,
-                self.model.offsets_nm, _NO_LINEAR if linear is None else linear,
-                friction.parameters, _NO_WAVELET_INPUTS, _NO_FLOATS, _NO_INTS, _NO_FLOATS,
-                _NO_VALUES, self._effect_codes, self._effect_floats,
-            )  # fmt: skip
+        model_terms_into(io, n, *self.arguments())
         out = io[self._out].tolist()
         other, weight = out[:n], out[n:]
-        if python_friction:
-            row = np.asarray([qd], dtype=float)
-            torque = self.model.friction_torque(row)[0].tolist()
-            other = [o + f for o, f in zip(other, torque, strict=True)]
-            weight = friction.coverage_weight(row)[0].tolist()
+        if self.python_friction:
+            torque, weight_array = self.python_terms(qd)
+            other = [o + f for o, f in zip(other, torque.tolist(), strict=True)]
+            weight = weight_array.tolist()
         return other, weight
-
-
-_NO_LINEAR = np.zeros((0, 2))
-_NO_WAVELET_INPUTS = np.zeros((0, 1), dtype=np.int64)
 
 
 def _term_table(friction: object, n: int) -> np.ndarray | None:
@@ -240,6 +329,9 @@ def _term_table(friction: object, n: int) -> np.ndarray | None:
     return np.ascontiguousarray(np.concatenate((rows, reach), axis=1), dtype=float)
 
 
+# -- the rigid body and the tip ------------------------------------------------------------------
+
+
 @njit_cached()
 def linear_map_into(matrix: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
     """``out = matrix @ x`` over the nonzero entries of a small matrix."""
@@ -249,7 +341,8 @@ def linear_map_into(matrix: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
 
 @njit_cached()
 def rigid_terms_into(
-    state: np.ndarray,
+    q: np.ndarray,
+    qd: np.ndarray,
     v_model: np.ndarray,
     mass: np.ndarray,
     coriolis: np.ndarray,
@@ -257,20 +350,17 @@ def rigid_terms_into(
     coupling: np.ndarray,
     rotor: np.ndarray,
     springs: np.ndarray,
+    momentum: np.ndarray,
+    other: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Momentum and ``-C^T qd + N + springs`` in motor coordinates, at one sample.
 
-    ``state``: ``[q (n), qd (n), momentum (n), other (n)]``, the last two written;
     ``v_model = T qd``; ``mass`` (upper triangle valid), ``coriolis``, ``gravity`` are
     pinocchio's in model coordinates, ``coupling`` is ``T`` (n_model, n), ``springs`` rows
-    ``[joint, stiffness, rest angle]``. The result is ``T^T M v_model + rotor qd`` and
-    ``T^T (g - C^T v_model) + springs``.
+    ``[joint, stiffness, rest angle]``. Writes ``momentum = T^T M v_model + rotor qd`` and
+    ``other = T^T (g - C^T v_model) + springs``.
     """
     n_model, n = coupling.shape
-    q = state[:n]
-    qd = state[n : 2 * n]
-    momentum = state[2 * n : 3 * n]
-    other = state[3 * n : 4 * n]
     for j in range(n):
         momentum[j] = rotor[j] * qd[j]
         other[j] = 0.0
@@ -300,3 +390,228 @@ def spring_table(joints: Sequence[int], stiffness: np.ndarray, rest: Sequence[fl
     for s, (j, k, r) in enumerate(zip(joints, stiffness, rest, strict=True)):
         table[s] = (float(j), float(k), float(r))
     return table
+
+
+@njit_cached()
+def tip_force_into(
+    jacobian_model: np.ndarray,
+    coupling: np.ndarray,
+    tau_ext: np.ndarray,
+    sigma_min: float,
+    j: np.ndarray,
+    force: np.ndarray,
+) -> bool:  # pragma: no cover - compiled
+    """``F`` with ``J^T F = tau_ext`` for three joints; return False (F untouched) if singular.
+
+    ``jacobian_model`` is pinocchio's 6 x n_model frame Jacobian (translational rows first),
+    ``J = jacobian_model[:3] T`` in motor coordinates. Only near a singularity (``|det J|`` at
+    most ``sigma_min ||J||_F^2``, a lower bound of the smallest singular value times the
+    largest squared) are the singular values computed. ``j`` (3 x 3) receives ``J``.
+    """
+    n_model = coupling.shape[0]
+    for r in range(3):
+        for c in range(3):
+            s = 0.0
+            for k in range(n_model):
+                s += jacobian_model[r, k] * coupling[k, c]
+            j[r, c] = s
+    a, b, c = j[0, 0], j[0, 1], j[0, 2]
+    d, e, f = j[1, 0], j[1, 1], j[1, 2]
+    g, h, i = j[2, 0], j[2, 1], j[2, 2]
+    c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c00 + b * c01 + c * c02
+    frob = a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i
+    if not abs(det) > sigma_min * frob:
+        if not (math.isfinite(det) and math.isfinite(frob)):
+            return False
+        smallest = np.linalg.svd(j)[1][-1]
+        if smallest < sigma_min or det == 0.0:
+            return False
+    t0, t1, t2 = tau_ext[0], tau_ext[1], tau_ext[2]
+    force[0] = (c00 * t0 + c01 * t1 + c02 * t2) / det
+    force[1] = ((c * h - b * i) * t0 + (a * i - c * g) * t1 + (b * g - a * h) * t2) / det
+    force[2] = ((b * f - c * e) * t0 + (c * d - a * f) * t1 + (a * e - b * d) * t2) / det
+    return True
+
+
+# -- the step, in two halves around pinocchio -------------------------------------------------
+
+
+@njit_cached()
+def prefilter_step(
+    state: np.ndarray,
+    sample: np.ndarray,
+    omega_v: float,
+    coupling: np.ndarray,
+    q_model: np.ndarray,
+    v_model: np.ndarray,
+    q_jacobian: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """Check one sample, run ``L_v`` and the backward difference; write pinocchio's inputs.
+
+    ``sample`` is ``[t, q (n), tau (n)]``; ``state`` (:func:`state_size`) holds
+    ``[has previous, previous t, first t, L_v state (2 n), L state (4 n), q (n), qd (n)]``.
+    Writes ``q_model = T L_v(q)``, ``v_model = T qd`` and ``q_jacobian = T q`` (raw angles).
+    Returns a status (``STEP_*``); on an error the state is untouched.
+    """
+    n = coupling.shape[1]
+    for k in range(1 + 2 * n):
+        if not math.isfinite(sample[k]):
+            return STEP_NON_FINITE
+    t = sample[0]
+    stage1 = state[STATE_HEAD : STATE_HEAD + 2 * n]
+    q = state[STATE_HEAD + 6 * n : STATE_HEAD + 7 * n]
+    qd = state[STATE_HEAD + 7 * n : STATE_HEAD + 8 * n]
+    if state[0] == 0.0:
+        for k in range(2 * n):
+            stage1[k] = sample[1 + k]
+        for k in range(n):
+            qd[k] = 0.0
+        state[2] = t
+    else:
+        dt = t - state[1]
+        if not dt > 0.0:
+            return STEP_TIME_NOT_INCREASING
+        a = math.exp(-omega_v * dt)
+        b = 1.0 - a
+        for k in range(2 * n):
+            previous = stage1[k]
+            stage1[k] = a * previous + b * sample[1 + k]
+            if k < n:
+                qd[k] = (stage1[k] - previous) / dt
+    for k in range(n):
+        q[k] = stage1[k]
+    linear_map_into(coupling, q, q_model)
+    linear_map_into(coupling, qd, v_model)
+    linear_map_into(coupling, sample[1 : 1 + n], q_jacobian)
+    return STEP_OK
+
+
+@njit_cached()
+def finish_step(
+    state: np.ndarray,
+    sample: np.ndarray,
+    omega: float,
+    lag: int,
+    rigid: bool,
+    v_model: np.ndarray,
+    mass: np.ndarray,
+    coriolis: np.ndarray,
+    gravity: np.ndarray,
+    coupling: np.ndarray,
+    rotor: np.ndarray,
+    springs: np.ndarray,
+    tip: bool,
+    jacobian_model: np.ndarray,
+    jacobian_motor: np.ndarray,
+    sigma_min: float,
+    extra: np.ndarray,
+    scratch: np.ndarray,
+    out: np.ndarray,
+    mode: int,
+    offsets: np.ndarray,
+    linear_table: np.ndarray,
+    linear_parameters: np.ndarray,
+    wavelet_inputs: np.ndarray,
+    wavelet_table: np.ndarray,
+    wavelet_runs: np.ndarray,
+    wavelet_psi: np.ndarray,
+    grid_ints: np.ndarray,
+    grid_floats: np.ndarray,
+    grid_values: np.ndarray,
+    effect_codes: np.ndarray,
+    effect_floats: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Rigid body, the filter ``L``, the model's terms, ``tau_ext`` and ``F`` at one sample.
+
+    After :func:`prefilter_step`. ``rigid``: whether ``mass``, ``coriolis``, ``gravity`` hold
+    this sample's pinocchio terms (else the rigid body is zero); ``tip``: whether
+    ``jacobian_model`` holds the tip Jacobian at the raw angles and ``n == 3`` (else ``F`` is
+    NaN; ``jacobian_motor``, 3 x 3, receives ``J``). ``extra`` (2 n, or empty): friction
+    torque and coverage weight computed outside (a friction without term encoding).
+    ``scratch``: 7 n + the effects' work.
+    ``out`` (:func:`output_size`): ``[F, tau_ext, tau_L, tau_model, weight, singular]``.
+    """
+    n = coupling.shape[1]
+    first = state[0] == 0.0
+    t = sample[0]
+    dt = t - state[1]
+    tau_v = state[STATE_HEAD + n : STATE_HEAD + 2 * n]
+    stage2 = state[STATE_HEAD + 2 * n : STATE_HEAD + 6 * n]
+    q = state[STATE_HEAD + 6 * n : STATE_HEAD + 7 * n]
+    qd = state[STATE_HEAD + 7 * n : STATE_HEAD + 8 * n]
+    x_head = scratch[: 2 * n]
+    load = scratch[2 * n : 3 * n]
+    other = scratch[3 * n : 4 * n]
+    network = scratch[4 * n : 5 * n]
+    previous_tau = scratch[5 * n : 6 * n]
+    work = scratch[7 * n :]
+    weight = out[3 + 3 * n : 3 + 4 * n]
+    if rigid:
+        rigid_terms_into(
+            q, qd, v_model, mass, coriolis, gravity, coupling, rotor, springs,
+            x_head[:n], x_head[n:],
+        )  # fmt: skip
+    else:
+        for k in range(2 * n):
+            x_head[k] = 0.0
+    # L of [M qd, -C^T qd + N + springs]; D_L(M qd) + L(-C^T qd + N + springs) is the
+    # filtered rigid-body torque, the load that found effects on ``tau<j>`` read
+    a = 0.0
+    b = 1.0
+    if first:
+        for k in range(2 * n):
+            stage2[k] = x_head[k]
+        for k in range(n):
+            load[k] = stage2[n + k]
+    else:
+        a = math.exp(-omega * dt)
+        b = 1.0 - a
+        for k in range(2 * n):
+            previous = stage2[k]
+            stage2[k] = a * previous + b * x_head[k]
+            if k < n:
+                load[k] = (stage2[k] - previous) / dt
+        for k in range(n):
+            load[k] += stage2[n + k]
+    add_model_terms(
+        t - state[2], q, qd, load, other, weight, network, work, mode, offsets, linear_table,
+        linear_parameters, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, grid_ints,
+        grid_floats, grid_values,
+        effect_codes, effect_floats,
+    )  # fmt: skip
+    if extra.size > 0:
+        for k in range(n):
+            other[k] += extra[k]
+            weight[k] = extra[n + k]
+    tail = stage2[2 * n :]
+    tau_filtered = out[3 + n : 3 + 2 * n]
+    if first:
+        for k in range(n):
+            tail[k] = other[k]
+            tail[n + k] = tau_v[k]
+            tau_filtered[k] = tau_v[k]
+    else:
+        for k in range(n):
+            previous_tau[k] = tail[n + k]
+            tail[k] = a * tail[k] + b * other[k]
+            tail[n + k] = a * tail[n + k] + b * tau_v[k]
+            tau_filtered[k] = tail[n + k] if lag == 0 else previous_tau[k]
+    tau_ext = out[3 : 3 + n]
+    tau_model = out[3 + 2 * n : 3 + 3 * n]
+    for k in range(n):
+        tau_model[k] = load[k] + tail[k]
+        tau_ext[k] = tau_filtered[k] - tau_model[k]
+    state[0] = 1.0
+    state[1] = t
+    out[3 + 4 * n] = 0.0
+    if tip and n == 3:
+        if not tip_force_into(
+            jacobian_model, coupling, tau_ext, sigma_min, jacobian_motor, out[:3]
+        ):
+            out[3 + 4 * n] = 1.0
+            for k in range(3):
+                out[k] = math.nan
+    else:
+        for k in range(3):
+            out[k] = math.nan

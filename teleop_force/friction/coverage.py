@@ -187,6 +187,8 @@ class CoverageMap:
                 for c, g in zip(counts, self._grids, strict=True)
             ]
         self._density: list[np.ndarray | None] = [None] * len(self._grids)
+        #: Incremented whenever the counts change (streaming users re-read the grids).
+        self.version = 0
 
     @classmethod
     def for_inputs(
@@ -240,6 +242,7 @@ class CoverageMap:
             flat = np.ravel_multi_index(tuple(cell[inside].T), g.shape)
             self._counts[j] += np.bincount(flat, minlength=int(np.prod(g.shape))).reshape(g.shape)
             self._density[j] = None
+            self.version += 1
 
     def density_grid(self, joint: int) -> np.ndarray:
         """Smoothed samples per cell of ``joint``'s grid."""

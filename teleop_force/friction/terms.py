@@ -207,30 +207,76 @@ def pool_wavelets(
 
 
 @njit_cached(fastmath={"contract"})
+def _wavelet_values_into(
+    x0: float, x1: float, table: np.ndarray, d: int, start: int, end: int, psi: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """``psi[c]`` = the Mexican hat of wavelet column ``c`` in ``[start, end)`` at ``(x0, x1)``.
+
+    The columns read one velocity (``d == 1``) or two; an unused input has ``x = 0`` and a
+    zero centre, so it adds exactly 0 to ``r2``.
+    """
+    inv = table[d]
+    centre0 = table[0]
+    if d == 1:
+        for c in range(start, end):
+            u = x0 * inv[c] - centre0[c]
+            psi[c] = mexican_hat_r2(u * u, 1.0)
+    else:
+        centre1 = table[1]
+        for c in range(start, end):
+            u = x0 * inv[c] - centre0[c]
+            v = x1 * inv[c] - centre1[c]
+            psi[c] = mexican_hat_r2(u * u + v * v, 1.0)
+
+
+@njit_cached(fastmath={"contract", "reassoc"})
+def _weighted_sum(psi: np.ndarray, weights: np.ndarray) -> float:  # pragma: no cover - compiled
+    """``psi @ weights``, reassociated so that it vectorises (as a BLAS dot would)."""
+    total = 0.0
+    for c in range(psi.size):
+        total += psi[c] * weights[c]
+    return total
+
+
+@njit_cached(fastmath={"contract"})
 def wavelet_network_torque_into(
-    qd: np.ndarray, inputs: np.ndarray, table: np.ndarray, out: np.ndarray
+    qd: np.ndarray,
+    inputs: np.ndarray,
+    table: np.ndarray,
+    runs: np.ndarray,
+    psi: np.ndarray,
+    out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Add the torque of a wavelet table at one sample ``qd`` (n,) to ``out`` (n,).
 
-    ``inputs`` (P, d): the velocity each wavelet's input column reads (``n`` or more: unused,
-    as in the pool's ``input_index``);
-    ``table`` (P, d + 1 + n): ``centre_scaled`` (d), ``inv_scale``, then the wavelet's
-    weight ``amplitude * coefficient`` on every joint (a wavelet that several joints' networks
-    share is one row).
+    ``inputs`` (P, d): the velocity each wavelet's input column reads (``n`` or
+    more: unused, as in the pool's ``input_index``, with a zero centre); ``table``
+    (d + 1 + n, P), one column per wavelet: ``centre_scaled`` (d), ``inv_scale``, then its
+    weight ``amplitude * coefficient`` on every joint (a wavelet that several joints'
+    networks share is one column); ``runs`` (R, 2): ``[start, end)`` of the columns that read
+    the same velocities (sorted so by the table's builder), so that the loops over wavelets
+    have no gather and vectorise (one or two inputs; more are evaluated column by column);
+    ``psi`` (P) scratch.
     """
-    p, d = inputs.shape
+    d = inputs.shape[1]
     n = out.size
-    for c in range(p):
-        inv = table[c, d]
-        r2 = 0.0
-        for i in range(d):
-            index = inputs[c, i]
-            if index < qd.size:
-                u = qd[index] * inv - table[c, i]
-                r2 += u * u
-        psi = mexican_hat_r2(r2, 1.0)
-        for j in range(n):
-            out[j] += psi * table[c, d + 1 + j]
+    if d > 2:  # general input count: one column at a time
+        for c in range(inputs.shape[0]):
+            r2 = 0.0
+            for i in range(d):
+                if inputs[c, i] < qd.size:
+                    u = qd[inputs[c, i]] * table[d, c] - table[i, c]
+                    r2 += u * u
+            psi[c] = mexican_hat_r2(r2, 1.0)
+    for r in range(runs.shape[0] if d <= 2 else 0):
+        start = runs[r, 0]
+        x0 = qd[inputs[start, 0]] if inputs[start, 0] < qd.size else 0.0
+        x1 = 0.0
+        if d > 1 and inputs[start, 1] < qd.size:
+            x1 = qd[inputs[start, 1]]
+        _wavelet_values_into(x0, x1, table, d, start, runs[r, 1], psi)
+    for j in range(n):
+        out[j] += _weighted_sum(psi[: inputs.shape[0]], table[d + 1 + j])
 
 
 # -- coverage trust ----------------------------------------------------------------------------

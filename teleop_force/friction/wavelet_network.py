@@ -479,10 +479,12 @@ class _SingleSampleTorque:
     """The active wavelets of a :class:`WaveletNetwork` as a wavelet table, for one sample.
 
     The table is what :func:`~teleop_force.friction.terms.wavelet_network_torque_into`
-    evaluates: one row per distinct wavelet with its inputs, ``centre_scaled``, ``inv_scale``
-    and its weight ``amplitude * coefficient`` on every joint. Wavelets that several joints'
-    networks share (same inputs, ``m`` and ``n``: the Omni's joints 2 and 3 read the same
-    velocities) are one row with a weight per joint.
+    evaluates: one column per distinct wavelet with ``centre_scaled``, ``inv_scale`` and its
+    weight ``amplitude * coefficient`` on every joint (rows), the velocities it reads in
+    ``inputs``. Wavelets that several joints' networks share (same inputs, ``m`` and ``n``:
+    the Omni's joints 2 and 3 read the same velocities) are one column with a weight per
+    joint. Columns are sorted by their inputs; ``runs`` lists the ``[start, end)`` of each
+    run of columns reading the same velocities, so the kernel's inner loops need no gather.
     """
 
     def __init__(self, network: WaveletNetwork) -> None:
@@ -492,7 +494,7 @@ class _SingleSampleTorque:
         self.structure_version = network.structure_version
         self.coef_version = -1
         self.n = network.n_joints
-        # one row per distinct wavelet (inputs, m, n); `slot[k]` is active wavelet k's
+        # one column per distinct wavelet (inputs, m, n); `slot[k]` is active wavelet k's
         slots: dict[tuple[object, ...], int] = {}
         slot = np.empty(idx.size, dtype=np.int64)
         first: list[int] = []
@@ -505,27 +507,43 @@ class _SingleSampleTorque:
             slot[k] = slots[key]
         unique = np.asarray(first, dtype=np.int64)
         d = pool.dmax
-        self.inputs = np.ascontiguousarray(pool.input_index[unique])
-        self.table = np.zeros((unique.size, d + 1 + self.n))
-        self.table[:, :d] = pool.centre_scaled[unique]
-        self.table[:, d] = pool.inv_scale[unique]
+        inputs = pool.input_index[unique].reshape(unique.size, d)
+        order = np.lexsort(inputs.T[::-1]) if unique.size else np.zeros(0, dtype=np.int64)
+        rank = np.empty(unique.size, dtype=np.int64)
+        rank[order] = np.arange(unique.size)
+        unique = unique[order]
+        self.inputs = np.ascontiguousarray(inputs[order], dtype=np.int64)
+        starts = [0] + [
+            c
+            for c in range(1, unique.size)
+            if not np.array_equal(self.inputs[c], self.inputs[c - 1])
+        ]
+        ends = [*starts[1:], unique.size]
+        self.runs = np.array(list(zip(starts, ends, strict=True)) if unique.size else [],
+                             dtype=np.int64).reshape(-1, 2)  # fmt: skip
+        self.table = np.zeros((d + 1 + self.n, unique.size))
+        self.table[:d] = pool.centre_scaled[unique].T
+        self.table[d] = pool.inv_scale[unique]
         self._weights = d + 1
         self.idx = idx
-        self.slot = slot
+        self.slot = rank[slot]
         self.joint = pool.joint[idx]
         self.amplitude = pool.amplitude[idx]
 
     def load_coefficients(self, network: WaveletNetwork) -> None:
         """Take ``network``'s current coefficients."""
-        w = np.zeros((self.table.shape[0], self.n))
+        w = np.zeros((self.table.shape[1], self.n))
         np.add.at(w, (self.slot, self.joint), self.amplitude * network.coefficients_at(self.idx))
-        self.table[:, self._weights :] = w
+        self.table[self._weights :] = w.T
         self.coef_version = network._coef_version
 
     def __call__(self, qd: Sequence[float] | np.ndarray) -> np.ndarray:
         """Torque per joint at ``qd``."""
         out = np.zeros(self.n)
-        wavelet_network_torque_into(np.asarray(qd, dtype=float), self.inputs, self.table, out)
+        psi = np.empty(self.table.shape[1])
+        wavelet_network_torque_into(
+            np.asarray(qd, dtype=float), self.inputs, self.table, self.runs, psi, out
+        )
         return out
 
 
@@ -624,6 +642,11 @@ class WaveletNetwork(FrictionModel):
     def structure_version(self) -> int:
         """Counter bumped on every change of the active set."""
         return self._structure_version
+
+    @property
+    def coef_version(self) -> int:
+        """Counter bumped on every change of the coefficients."""
+        return self._coef_version
 
     def _refresh_active(self) -> None:
         self._active_idx = np.flatnonzero(self._active)
@@ -804,15 +827,15 @@ class WaveletNetwork(FrictionModel):
             kernel.load_coefficients(self)
         return kernel
 
-    def streaming_table(self) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(inputs, table)`` of the active wavelets, up to date, for one sample.
+    def streaming_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return ``(inputs, table, runs)`` of the active wavelets, up to date, for one sample.
 
         The arguments of :func:`~teleop_force.friction.terms.wavelet_network_torque_into`
         (see :class:`_SingleSampleTorque`); the arrays are replaced, not changed, when the
         structure changes, and their weights rewritten when the coefficients do.
         """
         kernel = self._single_sample()
-        return kernel.inputs, kernel.table
+        return kernel.inputs, kernel.table, kernel.runs
 
     # -- coverage-aware blending -------------------------------------------------------------
 

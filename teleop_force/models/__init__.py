@@ -3,8 +3,8 @@
 ``omni_sim.json`` is the dynamic model of the simulated Omni used by the demo and by the
 force-estimation service by default. It is created by ``python -m
 teleop_force.models.make_default``: the paper's identification protocol simulated on the
-simulated Omni, identified with the coupled Coulomb-viscous friction (``coupled-cv``). A
-wavelet-network model (``--friction wn``) may replace it once its training is in place.
+simulated Omni, identified with the paper's wavelet-network friction (``wn``), its coupled
+Coulomb-viscous fallback and the coverage map of its training velocities.
 """
 
 from pathlib import Path

@@ -3,14 +3,16 @@
 It simulates the paper's identification protocol on the simulated Omni (section IV: the
 rigid-body multisine of IV-A, then the slow friction sinusoids of IV-B with joints 2 and 3
 moving equally, oppositely and independently) and identifies the rigid-body base parameters
-with a coupled Coulomb-viscous friction (``coupled-cv``). The demo and the force-estimation
-service load this model unless ``--model`` names another one. Run it again after changing the
-simulator or the identification::
+with the paper's wavelet-network friction (``wn``: its coupled Coulomb-viscous fallback and
+the coverage map of its training velocities included, so the dashboard's Fig. 4 panel shows
+the trained ground). The demo and the force-estimation service load this model unless
+``--model`` names another one. Run it again after changing the simulator or the
+identification::
 
-    uv run python -m teleop_force.models.make_default [-o PATH] [--friction coupled-cv]
+    uv run python -m teleop_force.models.make_default [-o PATH] [--friction wn]
 
-The wavelet-network friction (``--friction wn``) may replace ``coupled-cv`` once its training
-is complete; the file format stays the same (``DynamicModel.save``).
+``--friction coupled-cv`` or ``cv`` make the simpler models (same file format,
+``DynamicModel.save``).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ class ProtocolConfig:
     rigid_body_s: float = 120.0
     friction_s: float = 40.0
     seed: int = 0
-    friction: str = "coupled-cv"
+    friction: str = "wn"
 
     def __post_init__(self) -> None:
         """Check the durations and the friction kind."""
@@ -111,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m teleop_force.models.make_default", description=__doc__.splitlines()[0]
     )
     parser.add_argument("-o", "--output", type=Path, default=DEFAULT_MODEL_PATH)
-    parser.add_argument("--friction", choices=("cv", "coupled-cv", "wn"), default="coupled-cv")
+    parser.add_argument("--friction", choices=("cv", "coupled-cv", "wn"), default="wn")
     parser.add_argument("--rigid-body-s", type=float, default=ProtocolConfig.rigid_body_s)
     parser.add_argument("--friction-s", type=float, default=ProtocolConfig.friction_s)
     parser.add_argument("--seed", type=int, default=0)

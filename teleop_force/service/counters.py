@@ -16,10 +16,6 @@ import math
 import time
 from typing import Any, Final
 
-import numpy as np
-
-from teleop_force.estimation.estimator import ForceEstimate
-from teleop_force.transport import messages as m
 from teleop_force.transport.stream_stats import LatencyHistogram, RateMeter, SequenceTracker
 
 #: Keys counted apart in ``malformed.by_key`` at most; further keys are counted together.
@@ -69,14 +65,16 @@ class EstimateCounters:
         processing: Time spent estimating and publishing one joint state [s].
         on_ground_all: Estimates with every joint on trained ground.
         on_ground_joint: Per joint, estimates with that joint on trained ground.
-        last_estimate: The last estimate published.
+        last_source_seq: ``source_seq`` of the last estimate published (-1: none yet).
+        last_force: ``f_n`` of the last estimate published.
 
     """
 
     __slots__ = (
         "errors",
         "last_error",
-        "last_estimate",
+        "last_force",
+        "last_source_seq",
         "latency",
         "on_ground_all",
         "on_ground_joint",
@@ -94,29 +92,39 @@ class EstimateCounters:
         self.latency = LatencyHistogram()
         self.processing = LatencyHistogram()
         self.on_ground_all = 0
-        self.on_ground_joint = np.zeros(n_joints, dtype=np.int64)
-        self.last_estimate: m.ForceEstimateMessage | None = None
+        self.on_ground_joint = [0] * n_joints
+        self.last_source_seq = -1
+        self.last_force: list[float] = []
 
     def count_published(
         self,
-        message: m.ForceEstimateMessage,
-        estimate: ForceEstimate,
+        source_seq: int,
+        force: list[float],
+        on_ground_mask: int,
+        n_joints: int,
+        singular: bool,
         stamp_ns: int,
         started_s: float,
     ) -> None:
-        """Count ``message`` (from ``estimate``), just published for a joint state.
+        """Count an estimate just published for a joint state.
 
-        ``stamp_ns``: the joint state's stamp (latency measured from it, to now);
-        ``started_s``: ``time.perf_counter()`` when its processing began.
+        ``force``: its ``f_n``; ``on_ground_mask``: bit ``j`` set when joint ``j`` is on
+        trained ground; ``stamp_ns``: the joint state's stamp (latency measured from it, to
+        now); ``started_s``: ``time.perf_counter()`` when its processing began.
         """
         self.published += 1
         self.latency.add((time.time_ns() - stamp_ns) * 1e-9)
-        if estimate.singular:
+        if singular:
             self.singular += 1
-        self.on_ground_joint += estimate.on_trained_ground
-        if all(message.on_trained_ground):  # the same flags, as a tuple: cheaper than np.all
+        if on_ground_mask:
+            joints = self.on_ground_joint
+            for j in range(n_joints):
+                if on_ground_mask >> j & 1:
+                    joints[j] += 1
+        if on_ground_mask == (1 << n_joints) - 1:
             self.on_ground_all += 1
-        self.last_estimate = message
+        self.last_source_seq = source_seq
+        self.last_force = force
         self.processing.add(time.perf_counter() - started_s)
 
     def count_error(self, error: str) -> None:
@@ -143,12 +151,11 @@ class EstimateCounters:
 
     def last_estimate_dict(self) -> dict[str, Any] | None:
         """Return the ``last_estimate`` statistics: its source ``seq`` and force (NaN: null)."""
-        last = self.last_estimate
-        if last is None:
+        if self.last_source_seq < 0:
             return None
         return {
-            "source_seq": last.source_seq,
-            "f_n": [None if math.isnan(x) else x for x in last.f_n],
+            "source_seq": self.last_source_seq,
+            "f_n": [None if math.isnan(x) else x for x in self.last_force],
         }
 
 

@@ -74,7 +74,7 @@ from teleop_force.errors import (
     ModelFileError,
     TeleopForceError,
 )
-from teleop_force.estimation.estimator import ForceEstimator
+from teleop_force.estimation.estimator import TRAINED_GROUND_WEIGHT, ForceEstimator
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.models import DEFAULT_MODEL_PATH
@@ -120,9 +120,7 @@ from teleop_force.transport.session import open_session, options_from_args
 
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
-#: Joint states queued for estimation at most (10 min at 1 kHz); beyond, they are dropped.
-MAX_BACKLOG: Final = 600_000
-#: On close, the queued joint states are still estimated for at most this long [s].
+#: The control thread is waited for at most this long on close [s].
 DRAIN_TIMEOUT_S: Final = 10.0
 #: Kinds recorded besides the device's own joint states and estimates.
 _RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
@@ -225,8 +223,6 @@ class ForceService:
         self._closed = False
         self._entities: list[Any] = []
         self._publisher: zenoh.Publisher | None = None
-        self._inbox: queue.SimpleQueue[tuple[bytes, int] | None] = queue.SimpleQueue()
-        self._worker: threading.Thread | None = None
         self._queries: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
         self._control_thread: threading.Thread | None = None
         self._logged: set[str] = set()
@@ -253,8 +249,6 @@ class ForceService:
         device = self.config.device
         session = self.session
         self._publisher = declare_data_publisher(session, self._estimate_key)
-        self._worker = threading.Thread(target=self._work, name="estimator", daemon=True)
-        self._worker.start()
         self._control_thread = threading.Thread(
             target=self._serve_controls, name="controls", daemon=True
         )
@@ -280,10 +274,9 @@ class ForceService:
     def close(self) -> None:
         """Stop processing, undeclare everything, then close the recording (idempotent).
 
-        The inputs go first; the worker then estimates on what is still queued (for at most
-        ``DRAIN_TIMEOUT_S``), and only then is the publisher undeclared (a publisher must not be
-        undeclared while another thread publishes on it). The recorder writes what was queued
-        before it closes the file.
+        The inputs go first; the publisher is undeclared under the estimator's lock, so no
+        receive thread is publishing on it then (a callback that comes after sees the service
+        closed). The recorder writes what was queued before it closes the file.
         """
         with self._lock:
             already = self._closed
@@ -296,10 +289,9 @@ class ForceService:
         if self._control_thread is not None:
             self._queries.put(None)
             self._control_thread.join(DRAIN_TIMEOUT_S)
-        if self._worker is not None:
-            self._inbox.put(None)
-            self._worker.join(DRAIN_TIMEOUT_S + 5.0)
-        undeclare_all(self._publisher)
+        with self._lock:
+            publisher, self._publisher = self._publisher, None
+            undeclare_all(publisher)
         recorder = self.recording.recorder
         if recorder is not None:
             recorder.close()
@@ -316,16 +308,25 @@ class ForceService:
     # -- callbacks ----------------------------------------------------------------------------
 
     def _on_own_js(self, sample: zenoh.Sample) -> None:
-        """Queue the device's joint states for the estimator thread."""
+        """Estimate on the device's joint state, in this receive thread, and publish.
+
+        One step costs microseconds (the compiled estimator), so it runs here: no queue, no
+        thread hop, no message object. Nothing may escape a receive thread: an unexpected
+        error is counted (and logged once per kind) and the next joint state is estimated on.
+        """
         arrival_ns = time.time_ns()
-        # Queued for the worker: this receive thread (and, through congestion control BLOCK,
-        # the slave publishing on it) never waits for the estimator.
         if self._closed:
             return
-        if self._inbox.qsize() >= MAX_BACKLOG:
-            self.joint_states.overflow += 1
-            return
-        self._inbox.put((sample.payload.to_bytes(), arrival_ns))
+        try:
+            self._on_joint_state(self._own_js_key, sample.payload.to_bytes(), arrival_ns)
+        except Exception as exc:  # nothing may stop the estimation
+            # TeleopForceError: e.g. the session went away under us; anything else is a bug,
+            # logged once per kind, and the next joint state is estimated on regardless.
+            with self._lock:
+                self.estimates.count_error(f"{type(exc).__name__}: {exc}")
+                self.stream.reset()
+            if not isinstance(exc, TeleopForceError):
+                self._log_once(f"estimator: unexpected {type(exc).__name__}: {exc}")
 
     def _on_recorded(self, sample: zenoh.Sample) -> None:
         """Every other recorded key (the own joint states come through :meth:`_on_own_js`)."""
@@ -346,89 +347,78 @@ class ForceService:
         with self._lock:
             self.malformed.count(key, exc)
 
-    def _work(self) -> None:
-        """Worker thread: estimate on the queued joint states, in arrival order."""
-        deadline: float | None = None
-        while True:
-            item = self._inbox.get()
-            if item is None:
-                return
-            if self._closed:
-                deadline = deadline or time.perf_counter() + DRAIN_TIMEOUT_S
-                if time.perf_counter() > deadline:
-                    continue  # draining took too long: the rest is dropped
-            try:
-                self._on_joint_state(self._own_js_key, *item)
-            except Exception as exc:  # nothing may stop the estimator thread
-                # TeleopForceError: e.g. the session went away under us; anything else is a bug,
-                # logged once per kind, and the next joint state is estimated on regardless.
-                with self._lock:
-                    self.estimates.count_error(f"{type(exc).__name__}: {exc}")
-                    self.stream.reset()
-                if not isinstance(exc, TeleopForceError):
-                    self._log_once(f"estimator: unexpected {type(exc).__name__}: {exc}")
-
     def _on_joint_state(self, key: str, payload: bytes, arrival_ns: int) -> None:
+        """Check one joint-state payload, estimate on it, publish, hand both to the recorder."""
         try:
-            js = m.JointState.decode(payload)
-            if js.n_joints != self.n_joints:
-                raise MessageError(f"{js.n_joints} joints, the model has {self.n_joints}")
-            if not _plausible(js):
-                raise MessageError(f"a value is beyond +-{MAX_ABS_JOINT_VALUE:g} (seq {js.seq})")
+            seq, t_ns, n, values = m.unpack_joint_state(payload)
+            if n != self.n_joints:
+                raise MessageError(f"{n} joints, the model has {self.n_joints}")
+            limit = MAX_ABS_JOINT_VALUE
+            if not all(-limit <= x <= limit for x in values):
+                raise MessageError(f"a value is beyond +-{limit:g} (seq {seq})")
         except MessageError as exc:
             self._count_malformed(key, exc)
             return
         with self._lock:
-            estimate = self._estimate_locked(js)
+            estimate = self._estimate_locked(seq, t_ns, values)
         recorder = self.recording.recorder  # read once: a control request may stop it meanwhile
         if recorder is not None:  # written by the recorder's thread, off this one
-            recorder.submit(key, js, arrival_ns)
+            recorder.submit(key, payload, arrival_ns)
             if estimate is not None:
-                recorder.submit(self._estimate_key, estimate, estimate.t_ns)
+                recorder.submit(self._estimate_key, *estimate)
 
-    def _estimate_locked(self, js: m.JointState) -> m.ForceEstimateMessage | None:
-        """Estimate on one joint state and publish; return the published message."""
+    def _estimate_locked(
+        self, seq: int, t_ns: int, values: tuple[float, ...]
+    ) -> tuple[bytes, int] | None:
+        """Estimate on one joint state and publish; return the payload and its publish time."""
         started_s = time.perf_counter()
-        inputs = self.joint_states
-        event = inputs.seqs.observe(js.seq)
+        if self._closed or self._publisher is None:
+            return None
+        event = self.joint_states.seqs.observe(seq)
         if event.duplicate:
             return None
-        inputs.rate.tick()
+        self.joint_states.rate.tick()
         stream, estimator, adapt = self.stream, self.estimator, self.adaptation_state
         online = adapt.adaptation
-        if stream.advance(js.t_ns, event.restarted):
+        if stream.advance(t_ns, event.restarted):
             estimator.reset()
             if online is not None:
                 online.reset()
         t_s = stream.t_s
-        q = np.array(js.q_rad)
-        tau = np.array(js.effort_nm)
+        n = self.n_joints
+        q = values[:n]
+        tau = values[2 * n :]
         counters = self.estimates
         try:
-            estimate = estimator.update(t_s, q, tau)
+            out = estimator.step(t_s, q, tau).tolist()
             if adapt.enabled and online is not None:
-                online.update(t_s, q, tau)
-            message = m.ForceEstimateMessage(
-                counters.published & SEQ_MASK,
-                time.time_ns(),
-                js.seq,
-                tuple(estimate.force_tip_in_base_n.tolist()),
-                tuple(estimate.tau_external_nm.tolist()),
-                tuple(estimate.on_trained_ground.tolist()),
-                tuple(estimate.coverage_weight.tolist()),
-                tuple(estimate.tau_motor_filtered_nm.tolist()),
-                tuple(estimate.tau_model_filtered_nm.tolist()),
-            )
-        except (DataError, MessageError, ArithmeticError) as exc:
-            # A non-finite result: the filter states may hold inf / NaN now, so the next joint
-            # state starts a fresh stream instead of failing forever.
+                online.update(t_s, np.array(q), np.array(tau))
+        except (DataError, ArithmeticError) as exc:
             counters.count_error(str(exc))
             stream.reset()
             return None
-        assert self._publisher is not None
-        put(self._publisher, message.encode())
-        counters.count_published(message, estimate, js.t_ns, started_s)
-        return message
+        # out: [F (3), tau_ext, tau_motor_L, tau_model_L, weight (n each), singular]
+        force = out[:3]
+        joint_space = out[3 : 3 + 4 * n]
+        if not math.isfinite(sum(joint_space)) or math.inf in force or -math.inf in force:
+            # A non-finite result: the filter states may hold inf / NaN now, so the next joint
+            # state starts a fresh stream instead of failing forever.
+            counters.count_error(f"non-finite estimate at seq {seq}")
+            stream.reset()
+            return None
+        weight = out[3 + 3 * n : 3 + 4 * n]
+        mask = 0
+        for j in range(n):
+            if weight[j] >= TRAINED_GROUND_WEIGHT:
+                mask |= 1 << j
+        published_ns = time.time_ns()
+        payload = m.pack_force_estimate(
+            counters.published & SEQ_MASK, published_ns, seq, n,
+            [*force, *out[3 : 3 + n], *weight, *out[3 + n : 3 + 3 * n]], mask,
+        )  # fmt: skip
+        put(self._publisher, payload)
+        counters.count_published(seq, force, mask, n, out[3 + 4 * n] != 0.0, t_ns, started_s)
+        return payload, published_ns
 
     def _log_once(self, message: str) -> None:
         if message not in self._logged and len(self._logged) < MAX_COUNTED_KEYS:
@@ -613,7 +603,7 @@ class ForceService:
                 },
                 "uptime_s": round(time.perf_counter() - self._started_s, 3),
                 "joint_states": self.joint_states.to_dict(
-                    stream_restarts=self.stream.restarts, backlog=self._inbox.qsize()
+                    stream_restarts=self.stream.restarts, backlog=0
                 ),
                 "estimates": estimates.to_dict(),
                 "malformed": self.malformed.to_dict(),
@@ -628,12 +618,6 @@ class ForceService:
                 "controls": self.controls.to_dict(),
                 "last_estimate": estimates.last_estimate_dict(),
             }
-
-
-def _plausible(js: m.JointState) -> bool:
-    """Whether every value of ``js`` is within +-MAX_ABS_JOINT_VALUE (decode checked finite)."""
-    limit = MAX_ABS_JOINT_VALUE
-    return all(-limit <= x <= limit for x in (*js.q_rad, *js.qd_rad_s, *js.effort_nm))
 
 
 def _try_estimator(estimator: ForceEstimator, path: Path) -> None:

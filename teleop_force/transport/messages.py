@@ -75,7 +75,7 @@ from __future__ import annotations
 import math
 import operator
 import struct
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from types import MappingProxyType
@@ -778,6 +778,41 @@ def peek_header(data: bytes | bytearray | memoryview) -> tuple[int, int, int, in
     if magic != MAGIC:
         raise MessageError(f"bad magic {bytes(magic)!r}, expected {MAGIC!r}")
     return version, kind, seq, t_ns
+
+
+def unpack_joint_state(data: bytes | bytearray | memoryview) -> tuple[int, int, int, tuple]:
+    """Return ``(seq, t_ns, n, (q..., qd..., effort...))`` of a JointState without an object.
+
+    The same checks as :meth:`JointState.decode` (raise MessageError), for receivers at
+    1 kHz that need the numbers, not a message object.
+    """
+    buf = _buffer(data)
+    _check_header(buf, MessageType.JOINT_STATE)
+    n = _joint_count(buf, "JointState")
+    layout = _JOINT_STATE[n]
+    _check_size(buf, layout.size, "JointState")
+    v = layout.unpack(buf)
+    values = v[6:]
+    if not _all_finite(values):
+        raise MessageError("JointState: non-finite q_rad, qd_rad_s or effort_nm")
+    return v[3], v[4], n, values
+
+
+def pack_force_estimate(
+    seq: int, t_ns: int, source_seq: int, n: int, values: Sequence[float], mask: int
+) -> bytes:
+    """Encode a ForceEstimateMessage from its numbers, without an object (unchecked).
+
+    ``values``: ``f_n`` (3), ``tau_ext_nm``, ``coverage_weight``, ``tau_motor_filtered_nm``,
+    ``tau_model_filtered_nm`` (n each), in that (wire) order; ``mask``: the on-trained-ground
+    bits. The caller guarantees what :class:`ForceEstimateMessage` would check (finite
+    joint-space values, no infinite force, ``seq`` and ``source_seq`` in 32 bits); the bytes
+    are those of :meth:`ForceEstimateMessage.encode`.
+    """
+    return _FORCE_ESTIMATE[n].pack(
+        MAGIC, VERSION, MessageType.FORCE_ESTIMATE, seq, t_ns, source_seq, n, *values,
+        mask.to_bytes(_mask_bytes(n), "little"),
+    )  # fmt: skip
 
 
 def sequence_gap(previous_seq: int, seq: int) -> int:

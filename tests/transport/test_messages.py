@@ -312,3 +312,30 @@ def mutated(draw):
 @given(mutated())
 def test_fuzz_mutated_valid_messages(data):
     only_message_error(data)
+
+
+def test_unpack_joint_state_equals_decode_and_checks_the_same() -> None:
+    js = m.JointState(7, 123, (0.1, 0.2, 0.3), (1.0, 2.0, 3.0), (-0.1, 0.0, 0.5))
+    seq, t_ns, n, values = m.unpack_joint_state(js.encode())
+    assert (seq, t_ns, n) == (7, 123, 3)
+    assert values == (*js.q_rad, *js.qd_rad_s, *js.effort_nm)
+    bad = bytearray(js.encode())
+    bad[17:25] = struct.pack("<d", math.nan)
+    for payload in (bytes(bad), js.encode()[:-1], m.ContactForce(1, 2, (0.0, 0.0, 0.0)).encode()):
+        with pytest.raises(MessageError):
+            m.JointState.decode(payload)
+        with pytest.raises(MessageError):
+            m.unpack_joint_state(payload)
+
+
+def test_pack_force_estimate_is_the_encoding_of_the_message() -> None:
+    flags = (True, False, True)
+    message = m.ForceEstimateMessage(
+        5, 99, 4, (math.nan, 1.0, 2.0), (0.1, 0.2, 0.3), flags, (1.0, 0.2, 0.7),
+        (3.0, 4.0, 5.0), (6.0, 7.0, 8.0),
+    )  # fmt: skip
+    values = [
+        *message.f_n, *message.tau_ext_nm, *message.coverage_weight,
+        *message.tau_motor_filtered_nm, *message.tau_model_filtered_nm,
+    ]  # fmt: skip
+    assert m.pack_force_estimate(5, 99, 4, 3, values, 0b101) == message.encode()
