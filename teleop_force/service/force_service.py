@@ -12,9 +12,12 @@ For one device (``--device``, the slave)::
     subscribes  omni/<device>/service/adapt   "on" / "off": online WN adaptation
     token       omni/<device>/alive/service
 
-Each joint state is run through :class:`~teleop_force.estimation.estimator.ForceEstimator`
-(streaming,
-no accelerations) with the time ``t = (t_ns - t0_ns) * 1e-9`` counted in integer nanoseconds
+Each joint state is estimated on in the Zenoh receive thread that delivers it (the compiled
+step of :class:`~teleop_force.estimation.estimator.ForceEstimator` costs microseconds: no
+queue, no thread hop, no message object; the payload is checked and unpacked with
+:func:`~teleop_force.transport.messages.unpack_joint_state` and the estimate packed with
+:func:`~teleop_force.transport.messages.pack_force_estimate`), streaming, with no
+accelerations, with the time ``t = (t_ns - t0_ns) * 1e-9`` counted in integer nanoseconds
 from the first sample of the stream, so the same stream gives the same floats whenever it is
 played (a replay shifted in time included). A stream restarts, and the estimator with it,
 when its ``seq`` goes backwards or jumps far, or its stamp goes backwards or pauses > 0.5 s.
@@ -27,7 +30,10 @@ latency p50/p99/max [ms] (joint-state stamp -> estimate publish), processing tim
 fraction of estimates on trained ground, the model running (``model.path``), adaptation
 state, recording (``recording``: the open one or ``null``; ``last_recording``), controls,
 memory (``memory``: resident size and the trims of
-:class:`~teleop_force.process.memory.MemoryTrimmer`).
+:class:`~teleop_force.process.memory.MemoryTrimmer`). ``joint_states.backlog`` and
+``overflow_dropped`` are kept for clients of older releases and stay 0: nothing is queued.
+``zenoh_floor`` is ``null`` unless the process runs as the Zenoh floor (``--zenoh-floor``:
+the same subscriptions and publication doing no work, for ``teleop-force bench``).
 
 Bad input never stops the service: a malformed or wrong-version payload, a joint state with a
 value beyond :data:`MAX_ABS_JOINT_VALUE` or of the wrong joint count is counted under
@@ -142,6 +148,10 @@ class ServiceConfig:
             and ``teleop_force/models/``.
         record_dirs: Folders recordings may be started in on request, besides ``recordings/``.
         record_flush_s: A recording's chunk is handed to the OS at least this often [s].
+        zenoh_floor: Measure the Zenoh floor: the same subscriptions (the joint states, and
+            the recorded keys when ``record_path`` is set) and the same publication (one
+            estimate-sized payload per joint state), doing no work: no decoding, no estimate,
+            no recording. ``teleop-force bench`` compares the service's CPU with it.
 
     """
 
@@ -153,6 +163,7 @@ class ServiceConfig:
     models_dirs: tuple[Path, ...] = ()
     record_dirs: tuple[Path, ...] = ()
     record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
+    zenoh_floor: bool = False
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -212,7 +223,11 @@ class ForceService:
         self.recording = RecordingState()
         if self.config.adapt:
             self.set_adaptation(True)
-        if self.config.record_path is not None:
+        self._floor_payload = m.pack_force_estimate(
+            0, 0, 0, self.n_joints, [0.0] * (3 + 4 * self.n_joints), 0
+        )
+        self._floor_received = 0
+        if self.config.record_path is not None and not self.config.zenoh_floor:
             self.recording.recorder = BackgroundRecorder(
                 self._open_writer(self.config.record_path), self._count_malformed
             )
@@ -253,9 +268,16 @@ class ForceService:
             target=self._serve_controls, name="controls", daemon=True
         )
         self._control_thread.start()
-        self._entities.append(declare_subscriber(session, self._own_js_key, self._on_own_js))
-        if self.recording.recorder is not None:
-            self._subscribe_recorded()
+        if self.config.zenoh_floor:
+            self._entities.append(
+                declare_subscriber(session, self._own_js_key, self._on_own_js_floor)
+            )
+            if self.config.record_path is not None:
+                self._subscribe_recorded(self._on_recorded_floor)
+        else:
+            self._entities.append(declare_subscriber(session, self._own_js_key, self._on_own_js))
+            if self.recording.recorder is not None:
+                self._subscribe_recorded(self._on_recorded)
         self._entities.append(
             declare_subscriber(session, keys.service_adapt(device), self._on_adapt)
         )
@@ -337,11 +359,21 @@ class ForceService:
             return
         recorder.submit(key, sample.payload.to_bytes(), arrival_ns)  # decoded by its thread
 
-    def _subscribe_recorded(self) -> None:
+    def _subscribe_recorded(self, callback: Any) -> None:
         for kind in _RECORDED_KINDS:
             self.recording.entities.append(
-                declare_subscriber(self.session, keys.any_device(kind), self._on_recorded)
+                declare_subscriber(self.session, keys.any_device(kind), callback)
             )
+
+    def _on_own_js_floor(self, sample: zenoh.Sample) -> None:
+        """Zenoh floor (``zenoh_floor``): publish a fixed estimate-sized payload, nothing else."""
+        publisher = self._publisher
+        if publisher is not None and not self._closed:
+            put(publisher, self._floor_payload)
+            self._floor_received += 1
+
+    def _on_recorded_floor(self, sample: zenoh.Sample) -> None:
+        """Zenoh floor: a recorded key's sample, received and dropped."""
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:
@@ -558,7 +590,7 @@ class ForceService:
             raise
         with self._lock:
             self.recording.recorder = recorder
-        self._subscribe_recorded()
+        self._subscribe_recorded(self._on_recorded)
         log(ROLE, f"recording to {path}")
         return path
 
@@ -606,6 +638,11 @@ class ForceService:
                     stream_restarts=self.stream.restarts, backlog=0
                 ),
                 "estimates": estimates.to_dict(),
+                "zenoh_floor": (
+                    {"joint_states_received": self._floor_received}
+                    if self.config.zenoh_floor
+                    else None
+                ),
                 "malformed": self.malformed.to_dict(),
                 "latency_ms": estimates.latency.summary_ms(),
                 "processing_ms": estimates.processing.summary_ms(),
@@ -698,6 +735,10 @@ def build_parser() -> argparse.ArgumentParser:
         f"(default {DEFAULT_FLUSH_INTERVAL_S:g})",
     )  # fmt: skip
     parser.add_argument("--adapt", action="store_true", help="start with online WN adaptation on")
+    parser.add_argument(
+        "--zenoh-floor", action="store_true",
+        help="measure the Zenoh floor: same subscriptions and publication, no work (bench)",
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
         "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
@@ -723,6 +764,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             models_dirs=tuple(args.models_dir),
             record_dirs=tuple(args.record_dir),
             record_flush_s=args.record_flush_s,
+            zenoh_floor=args.zenoh_floor,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:

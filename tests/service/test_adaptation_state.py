@@ -1,5 +1,7 @@
 """The force service's adaptation switch: on, off, unavailable, and across model loads."""
 
+import dataclasses
+
 import pytest
 
 from teleop_force.errors import ConfigurationError
@@ -12,7 +14,10 @@ from teleop_force.service.adaptation_state import AdaptationState
 
 @pytest.fixture(scope="module")
 def base():
-    return DynamicModel.load(DEFAULT_MODEL_PATH)
+    """The shipped model with its wavelet network's coupled-CV fallback as the friction."""
+    shipped = DynamicModel.load(DEFAULT_MODEL_PATH)
+    assert isinstance(shipped.friction, WaveletNetwork)
+    return dataclasses.replace(shipped, friction=shipped.friction.fallback)
 
 
 def wn_estimator(base: DynamicModel) -> ForceEstimator:

@@ -1,5 +1,6 @@
 """The force-estimation service on a real (local) Zenoh session."""
 
+import dataclasses
 import math
 import time
 
@@ -25,6 +26,13 @@ DEVICE = "svc-test"
 @pytest.fixture(scope="module")
 def model():
     return DynamicModel.load(DEFAULT_MODEL_PATH)
+
+
+@pytest.fixture(scope="module")
+def cv_model(model):
+    """The shipped model with its wavelet network's coupled-CV fallback as the friction."""
+    assert isinstance(model.friction, WaveletNetwork)
+    return dataclasses.replace(model, friction=model.friction.fallback)
 
 
 @pytest.fixture
@@ -130,8 +138,8 @@ def test_a_stream_restart_resets_the_estimator(session, model):
         assert a.tau_model_filtered_nm == b.tau_model_filtered_nm
 
 
-def test_adaptation_is_refused_without_a_wavelet_network(session, model):
-    service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
+def test_adaptation_is_refused_without_a_wavelet_network(session, cv_model):
+    service = ForceService(session, cv_model, ServiceConfig(device=DEVICE)).start()
     try:
         session.put(keys.service_adapt(DEVICE), "on")
         time.sleep(0.05)
@@ -144,7 +152,8 @@ def test_adaptation_is_refused_without_a_wavelet_network(session, model):
     assert stats["adaptation"]["available"] is False
 
 
-def test_adaptation_runs_on_a_wavelet_network_model(session, model):
+def test_adaptation_runs_on_a_wavelet_network_model(session, cv_model):
+    model = cv_model
     network = WaveletNetwork(3, omni_wavelet_specs(), fallback=model.friction)
     wn_model = DynamicModel(
         model.robot, model.n_joints, model.filter_config, model.base, model.base_values,
@@ -191,7 +200,8 @@ def test_stats_keep_their_keys(session, model):
     service = ForceService(session, model, ServiceConfig(device=DEVICE))
     stats = service.stats()
     assert list(stats) == [
-        "role", "device", "model", "uptime_s", "joint_states", "estimates", "malformed",
+        "role", "device", "model", "uptime_s", "joint_states", "estimates", "zenoh_floor",
+        "malformed",
         "latency_ms", "processing_ms", "on_ground_fraction", "on_ground_fraction_per_joint",
         "adaptation", "recording", "last_recording", "memory", "controls", "last_estimate",
     ]  # fmt: skip

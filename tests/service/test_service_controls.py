@@ -60,7 +60,8 @@ def tree(tmp_path):
     for folder in (models, records, outside):
         folder.mkdir()
     data = json.loads(DEFAULT_MODEL_PATH.read_text())
-    data["friction"]["parameters"] = [2.0 * x for x in data["friction"]["parameters"]]
+    fallback = data["friction"]["fallback"]  # the shipped model's WN: double its fallback
+    fallback["parameters"] = [2.0 * x for x in fallback["parameters"]]
     (models / "doubled.json").write_text(json.dumps(data))
     (outside / "doubled.json").write_text(json.dumps(data))
     two = DynamicModel(
@@ -140,7 +141,7 @@ def test_a_model_is_loaded_between_samples_and_reported(system):
     target = tree["models"] / "doubled.json"
     reply = client.request_model_load(target)
     assert reply.ok, reply.text
-    assert reply.data == {"ok": True, "path": str(target.resolve()), "friction": "coupled-cv"}
+    assert reply.data == {"ok": True, "path": str(target.resolve()), "friction": "wn"}
     for js in after:
         pub.put(js.encode())
     wait_until(lambda: len(got) == 600)
