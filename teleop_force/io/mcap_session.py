@@ -1,24 +1,39 @@
-"""Recorded sessions: MCAP files with one JSON channel per Zenoh key, readable by Foxglove.
+"""Recorded sessions: MCAP files with one channel per Zenoh key, in ROS 2 CDR, read by Foxglove.
 
 Layout of a session file:
 
-- one channel per Zenoh key (``omni/<device>/measured_js`` ...), message encoding ``json``,
-  with a ``jsonschema`` schema per message class (``teleop_force.JointState`` ...) so
-  Foxglove shows and plots every field;
+- one channel per Zenoh key (``omni/<device>/measured_js`` ...), message encoding ``cdr`` with
+  a ``ros2msg`` schema per message class (``teleop_force/msg/JointState`` ...), the payloads and
+  schemas of :mod:`teleop_force.io.cdr_messages`: Foxglove decodes and plots every field;
 - MCAP ``log_time`` = when the recorder got the message, ``publish_time`` = the message's
-  own source stamp ``t_ns``, MCAP ``sequence`` = the message's ``seq``;
-- a metadata record ``teleop_force.session`` with the writer's key/value metadata.
+  own source stamp ``t_ns`` (``log_time`` if negative), MCAP ``sequence`` = the message's
+  ``seq``;
+- a metadata record ``teleop_force.session`` with the writer's key/value metadata, plus
+  ``format`` (``teleop-force-session``), ``format_version`` (``2``: CDR; ``1``: JSON) and
+  ``message_encoding``;
+- schemas and channels as top-level records, written when a key is first recorded; each
+  chunk holds the messages of one channel (:mod:`teleop_force.io.cdr_chunks`).
 
-Crash safety: data is written in zstd-compressed chunks (at most 1 MiB uncompressed by
-default) straight to the operating system (no user-space buffer), and a chunk is closed at
-least every ``flush_interval_s``, so a recorder killed with SIGKILL leaves a file whose
+Recordings made before the CDR encoding (format version 1: JSON channels with a
+``jsonschema`` schema per class, ``teleop_force.JointState`` ...) are read the same way, and
+:func:`export_session_json` rewrites any session in that layout (``SessionWriter(...,
+message_encoding="json")`` writes it directly).
+
+Writing: :meth:`SessionWriter.write_payloads` records a batch of wire payloads, checked and
+converted to CDR with numpy per key (no Python object per message); a malformed payload (or
+one of another class than its key's first) is rejected and returned, the rest written.
+:meth:`SessionWriter.write` records one message object.
+
+Crash safety: data is written in zstd-compressed chunks (at most ``chunk_size_bytes``
+uncompressed, 1 MiB by default) straight to the operating system (no user-space buffer), and
+the open chunks are closed at least every ``flush_interval_s`` (checked on every write and by
+:meth:`SessionWriter.flush_if_due`), so a recorder killed with SIGKILL leaves a file whose
 complete chunks are all readable: it loses at most the last ``flush_interval_s`` of data.
 The writer keeps one chunk index per chunk in memory until the summary is written at close
-(about 0.7 kB each): with 128 KiB chunks the demo's recording (1 MB/s uncompressed) made 4770
-chunks in 10 minutes, 3.3 MB of indexes; with 1 MiB chunks the 0.5 s flush closes them
-first (1193 chunks of 552 kB on average, 0.9 MB of indexes): the same loss bound.
-:class:`SessionReader` reads such a truncated file (no summary or footer) as well as a
-complete one.
+(under 1 kB each: the demo's six keys flushed every 0.4 s by the recorder make 9000 chunks in
+10 minutes, a few MB). :class:`SessionReader` reads such a truncated file (no summary or
+footer) as well as a complete one; :func:`~teleop_force.io.cdr_columns.read_joint_state_arrays`
+reads the joint states of one key as arrays.
 """
 
 from __future__ import annotations
@@ -31,7 +46,8 @@ import struct
 import threading
 import time
 import zlib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -42,9 +58,16 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
-from mcap.writer import CompressionType, Writer
 
-from teleop_force.errors import ConfigurationError, DataError, MessageError, TeleopForceError
+from teleop_force.errors import (
+    ConfigurationError,
+    DataError,
+    MessageError,
+    TeleopForceError,
+)
+from teleop_force.io import cdr_messages as cdr
+from teleop_force.io.cdr_chunks import COMPRESSIONS, ChunkedMcapWriter, DirectFile
+from teleop_force.io.cdr_columns import read_joint_state_arrays
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.transport import keys
 from teleop_force.transport import messages as msg
@@ -53,7 +76,10 @@ from teleop_force.transport import messages as msg
 METADATA_NAME: Final = "teleop_force.session"
 #: Value of the ``format`` metadata key, with ``format_version``.
 FORMAT_NAME: Final = "teleop-force-session"
-FORMAT_VERSION: Final = "1"
+#: ``format_version`` by message encoding: CDR sessions are version 2, JSON ones version 1.
+FORMAT_VERSIONS: Final = {"cdr": "2", "json": "1"}
+#: Message encodings a writer offers: ``cdr`` (the default) and ``json`` (the export layout).
+MESSAGE_ENCODINGS: Final = tuple(FORMAT_VERSIONS)
 DEFAULT_CHUNK_SIZE_BYTES: Final = 1024 * 1024
 DEFAULT_FLUSH_INTERVAL_S: Final = 0.5
 
@@ -63,44 +89,19 @@ _MAX_RECORD_BYTES: Final = 1 << 30  # larger than any record this project writes
 _PARSED_OPCODES: Final = frozenset(
     (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA)
 )
-_COMPRESSION: Final = {
-    "zstd": CompressionType.ZSTD,
-    "lz4": CompressionType.LZ4,
-    "none": CompressionType.NONE,
-}
+_MAX_LOG_TIME_NS: Final = 2**63  # log times are int64 nanoseconds since the epoch
+_MESSAGE_CLASSES: Final = tuple(msg.MESSAGE_CLASSES.values())
 
 
 # --------------------------------------------------------------------------- writing
 
 
-class _DirectFile:
-    """Append-only file that hands every write straight to the OS and counts the bytes."""
+@dataclass(frozen=True)
+class _Channel:
+    """A recorded key: its MCAP channel id and the one message class it carries."""
 
-    def __init__(self, path: Path) -> None:
-        self._raw = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
-        self.position = 0
-
-    def write(self, data: bytes | bytearray | memoryview) -> int:
-        view = memoryview(data)
-        while view.nbytes:
-            written = self._raw.write(view)
-            if written is None:  # pragma: no cover - only for non-blocking files
-                continue
-            view = view[written:]
-            self.position += written
-        return len(data)
-
-    def tell(self) -> int:
-        return self.position
-
-    def flush(self) -> None:
-        """Nothing is buffered in user space."""
-
-    def fsync(self) -> None:
-        os.fsync(self._raw.fileno())
-
-    def close(self) -> None:
-        self._raw.close()
+    channel_id: int
+    message_class: type[msg.Message]
 
 
 class SessionWriter:
@@ -109,10 +110,12 @@ class SessionWriter:
     Args:
         path: File to create (overwritten if it exists).
         metadata: Free key/value strings stored in the file (robot, model, operator...).
-        chunk_size_bytes: Uncompressed size at which a chunk is closed and written.
-        flush_interval_s: A chunk is also closed once it is this old, bounding data loss
+        chunk_size_bytes: Uncompressed size at which a channel's chunk is closed and written.
+        flush_interval_s: The open chunks are also closed once this old, bounding data loss
             on a crash in time as well as in bytes.
         compression: ``zstd`` (default), ``lz4`` or ``none``.
+        message_encoding: ``cdr`` (default) or ``json`` (the layout of recordings made before
+            the CDR encoding, for export).
 
     """
 
@@ -124,131 +127,301 @@ class SessionWriter:
         chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         compression: str = "zstd",
+        message_encoding: str = "cdr",
     ) -> None:
-        if compression not in _COMPRESSION:
+        if compression not in COMPRESSIONS:
             raise ConfigurationError(
-                f"compression must be one of {', '.join(_COMPRESSION)}, got {compression!r}"
+                f"compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}"
+            )
+        if message_encoding not in MESSAGE_ENCODINGS:
+            raise ConfigurationError(
+                f"message_encoding must be one of {', '.join(MESSAGE_ENCODINGS)}, "
+                f"got {message_encoding!r}"
             )
         if chunk_size_bytes < 1024:
             raise ConfigurationError(f"chunk_size_bytes must be >= 1024, got {chunk_size_bytes}")
         if not flush_interval_s > 0.0:
             raise ConfigurationError(f"flush_interval_s must be > 0, got {flush_interval_s}")
         self.path = Path(path)
+        self.message_encoding = message_encoding
+        self._json_encoder = (
+            json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+            if message_encoding == "json"
+            else None
+        )
         self._flush_interval_s = float(flush_interval_s)
         self._lock = threading.Lock()
-        self._json = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
         self._schema_ids: dict[type[msg.Message], int] = {}
-        self._channels: dict[str, tuple[int, type[msg.Message]]] = {}
-        self._written = 0
-        self._durable = 0
+        self._channels: dict[str, _Channel] = {}
         self._closed = False
         try:
-            self._file = _DirectFile(self.path)
+            self._file = DirectFile(self.path)
         except OSError as exc:
             raise DataError(f"cannot create file: {exc.strerror or exc}", path=self.path) from None
-        self._writer = Writer(
-            self._file,  # type: ignore[arg-type]
-            chunk_size=chunk_size_bytes,
-            compression=_COMPRESSION[compression],
-        )
         try:
-            self._writer.start(profile="", library="teleop-force")
-            info = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION}
+            self._mcap = ChunkedMcapWriter(
+                self._file, chunk_size_bytes=chunk_size_bytes, compression=compression
+            )
+            info = {
+                "format": FORMAT_NAME,
+                "format_version": FORMAT_VERSIONS[message_encoding],
+                "message_encoding": message_encoding,
+            }
             info.update({str(k): str(v) for k, v in (metadata or {}).items()})
-            self._writer.add_metadata(METADATA_NAME, info)
+            self._mcap.add_metadata(METADATA_NAME, info)
         except OSError as exc:
             self._file.close()
             raise DataError(f"cannot write file: {exc.strerror or exc}", path=self.path) from None
         self._last_flush_s = time.perf_counter()
 
     @property
+    def flush_interval_s(self) -> float:
+        """The open chunks are written at least this often [s]."""
+        return self._flush_interval_s
+
+    @property
     def messages_written(self) -> int:
-        """Messages handed to :meth:`write` so far."""
-        return self._written
+        """Messages recorded so far."""
+        return self._mcap.messages
 
     @property
     def messages_durable(self) -> int:
         """Messages already in complete chunks handed to the OS (they survive a crash)."""
-        return self._durable
+        return self._mcap.messages - self._mcap.open_messages
+
+    # -- one message object
 
     def write(self, topic: str, message: msg.Message, log_time_ns: int | None = None) -> None:
         """Record ``message`` on channel ``topic`` (a Zenoh key), received at ``log_time_ns``.
 
-        ``log_time_ns`` defaults to now (``time.time_ns()``).
+        ``log_time_ns`` defaults to now (``time.time_ns()``); raise DataError if ``topic``
+        already carries another message class, or on a write error.
         """
         if log_time_ns is None:
             log_time_ns = time.time_ns()
-        elif not 0 <= log_time_ns < 2**64:
-            raise DataError(f"log time {log_time_ns} ns is outside [0, 2**64)", path=self.path)
-        cls = type(message)
-        data = self._json.encode(message.to_json_dict()).encode("utf-8")
-        publish_ns = message.t_ns if message.t_ns >= 0 else log_time_ns
+        else:
+            self._check_log_time(log_time_ns)
         with self._lock:
-            if self._closed:
-                raise DataError("session file is already closed", path=self.path)
-            channel_id = self._channel(topic, cls)
-            position = self._file.position
-            try:
-                self._writer.add_message(
-                    channel_id=channel_id,
-                    log_time=log_time_ns,
-                    data=data,
-                    publish_time=publish_ns,
-                    sequence=message.seq,
-                )
-                self._written += 1
-                if self._file.position != position:
-                    self._durable = self._written
-                now_s = time.perf_counter()
-                if now_s - self._last_flush_s >= self._flush_interval_s:
-                    self._flush_locked(now_s)
-            except OSError as exc:
-                raise DataError(
-                    f"cannot write file: {exc.strerror or exc}", path=self.path
-                ) from None
+            self._check_open()
+            channel = self._channel(topic, type(message))
+            with self._io_errors():
+                self._add(channel, message, log_time_ns)
+                self._flush_locked(due_only=True)
 
-    def _channel(self, topic: str, cls: type[msg.Message]) -> int:
-        entry = self._channels.get(topic)
-        if entry is not None:
-            channel_id, channel_cls = entry
-            if channel_cls is not cls:
+    def _check_log_time(self, log_time_ns: int) -> None:
+        if not isinstance(log_time_ns, int) or not 0 <= log_time_ns < _MAX_LOG_TIME_NS:
+            raise DataError(f"log time {log_time_ns!r} ns is outside [0, 2**63)", path=self.path)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DataError("session file is already closed", path=self.path)
+
+    def _io_errors(self) -> AbstractContextManager[None]:
+        return _io_errors(self.path)
+
+    def _add(self, channel: _Channel, message: msg.Message, log_time_ns: int) -> None:
+        """Add one (valid) message; the lock is held."""
+        if self._json_encoder is None:
+            data = cdr.encode_cdr(message)
+        else:
+            data = self._json_encoder.encode(message.to_json_dict()).encode("utf-8")
+        publish_ns = message.t_ns if message.t_ns >= 0 else log_time_ns
+        self._mcap.add_message(channel.channel_id, message.seq, log_time_ns, publish_ns, data)
+
+    def _channel(self, topic: str, cls: type[msg.Message]) -> _Channel:
+        channel = self._channels.get(topic)
+        if channel is not None:
+            if channel.message_class is not cls:
                 raise DataError(
-                    f"channel {topic!r} carries {channel_cls.__name__}, not {cls.__name__}",
+                    f"channel {topic!r} carries {channel.message_class.__name__}, "
+                    f"not {cls.__name__}",
                     path=self.path,
                 )
-            return channel_id
+            return channel
         if not isinstance(topic, str) or not topic:
             raise DataError(f"bad channel name {topic!r}", path=self.path)
-        schema_id = self._schema_ids.get(cls)
-        if schema_id is None:
-            schema_id = self._writer.register_schema(
-                name=msg.schema_name(cls),
-                encoding="jsonschema",
-                data=json.dumps(cls.json_schema()).encode("utf-8"),
-            )
-            self._schema_ids[cls] = schema_id
-        channel_id = self._writer.register_channel(
-            topic=topic, message_encoding="json", schema_id=schema_id
-        )
-        self._channels[topic] = (channel_id, cls)
-        return channel_id
+        if cls not in _MESSAGE_CLASSES:
+            raise DataError(f"cannot record a {cls.__name__}", path=self.path)
+        with self._io_errors():
+            schema_id = self._schema_ids.get(cls)
+            if schema_id is None:
+                if self._json_encoder is None:
+                    schema = cdr.CDR_SCHEMAS[cls]
+                    schema_id = self._mcap.add_schema(
+                        schema.name, cdr.SCHEMA_ENCODING, schema.text.encode("utf-8")
+                    )
+                else:
+                    schema_id = self._mcap.add_schema(
+                        msg.schema_name(cls),
+                        "jsonschema",
+                        json.dumps(cls.json_schema()).encode("utf-8"),
+                    )
+                self._schema_ids[cls] = schema_id
+            channel_id = self._mcap.add_channel(topic, self.message_encoding, schema_id)
+        channel = self._channels[topic] = _Channel(channel_id, cls)
+        return channel
 
-    def _flush_locked(self, now_s: float) -> None:
-        self._writer.flush()
-        self._durable = self._written
+    # -- batches of wire payloads
+
+    def write_payloads(
+        self,
+        topics: Sequence[str],
+        payloads: Sequence[bytes],
+        log_times_ns: Sequence[int],
+    ) -> list[tuple[int, TeleopForceError]]:
+        """Record a batch of wire payloads; return ``(i, error)`` for each one rejected.
+
+        ``payloads[i]`` was received on key ``topics[i]`` at ``log_times_ns[i]``; the
+        rejected ones come back in input order.
+        A payload is rejected (MessageError) when it is malformed (the checks of
+        :func:`teleop_force.transport.messages.decode`), and (DataError) when its key already
+        carries another message class (the first valid message on a key fixes its class) or
+        its log time is outside [0, 2**63). Payloads of one key keep their order. Raise
+        DataError if the file is closed or cannot be written.
+        """
+        if not len(topics) == len(payloads) == len(log_times_ns):
+            raise DataError("topics, payloads and log times differ in length", path=self.path)
+        groups: dict[str, list[int]] = {}
+        for i, topic in enumerate(topics):
+            group = groups.get(topic)
+            if group is None:
+                groups[topic] = [i]
+            else:
+                group.append(i)
+        rejected: list[tuple[int, TeleopForceError]] = []
+        with self._lock:
+            self._check_open()
+            with self._io_errors():
+                for topic, indexes in groups.items():
+                    self._write_group(topic, indexes, payloads, log_times_ns, rejected)
+                self._flush_locked(due_only=True)
+        rejected.sort(key=lambda item: item[0])
+        return rejected
+
+    def _write_group(
+        self,
+        topic: str,
+        indexes: list[int],
+        payloads: Sequence[bytes],
+        log_times_ns: Sequence[int],
+        rejected: list[tuple[int, TeleopForceError]],
+    ) -> None:
+        """Write the payloads of one key, in order; the lock is held."""
+        channel = self._channels.get(topic)
+        start = 0
+        while channel is None and start < len(indexes):
+            i = indexes[start]
+            start += 1
+            try:
+                self._check_log_time(log_times_ns[i])
+                message = msg.decode(payloads[i])
+                channel = self._channel(topic, type(message))
+            except TeleopForceError as exc:
+                rejected.append((i, exc))
+                continue
+            self._add(channel, message, log_times_ns[i])
+        rest = indexes[start:]
+        if channel is None or not rest:
+            return
+        if (
+            self._json_encoder is None
+            and cdr.has_fixed_layout(channel.message_class)
+            and self._write_block(topic, channel, rest, payloads, log_times_ns, rejected)
+        ):
+            return
+        for i in rest:
+            self._write_payload(topic, channel, i, payloads, log_times_ns, rejected)
+
+    def _write_payload(
+        self,
+        topic: str,
+        channel: _Channel,
+        i: int,
+        payloads: Sequence[bytes],
+        log_times_ns: Sequence[int],
+        rejected: list[tuple[int, TeleopForceError]],
+    ) -> None:
+        try:
+            self._check_log_time(log_times_ns[i])
+            message = msg.decode(payloads[i])
+            if type(message) is not channel.message_class:
+                raise self._wrong_class(topic, channel, type(message))
+        except TeleopForceError as exc:
+            rejected.append((i, exc))
+            return
+        self._add(channel, message, log_times_ns[i])
+
+    def _wrong_class(self, topic: str, channel: _Channel, cls: type[msg.Message]) -> DataError:
+        return DataError(
+            f"channel {topic!r} carries {channel.message_class.__name__}, not {cls.__name__}",
+            path=self.path,
+        )
+
+    def _write_block(
+        self,
+        topic: str,
+        channel: _Channel,
+        rows: list[int],
+        payloads: Sequence[bytes],
+        log_times_ns: Sequence[int],
+        rejected: list[tuple[int, TeleopForceError]],
+    ) -> bool:
+        """Write same-size payloads as one numpy block; False (nothing written) if they are not."""
+        block_payloads = [payloads[i] for i in rows]
+        size = len(block_payloads[0])
+        if size == 0 or any(len(p) != size for p in block_payloads):
+            return False
+        try:
+            logs = np.array([log_times_ns[i] for i in rows], dtype=np.int64)
+        except (OverflowError, TypeError, ValueError):
+            return False
+        if logs.size and int(logs.min()) < 0:
+            return False
+        block = np.frombuffer(b"".join(block_payloads), dtype=np.uint8).reshape(len(rows), size)
+        result = cdr.wire_block_to_cdr(channel.message_class, block)
+        accepted = result.accepted
+        if not accepted.all():
+            for k in np.flatnonzero(~accepted).tolist():
+                try:
+                    message = msg.decode(block_payloads[k])
+                except MessageError as exc:
+                    rejected.append((rows[k], exc))
+                    continue
+                if type(message) is channel.message_class:  # pragma: no cover - same checks
+                    self._add(channel, message, int(logs[k]))
+                else:
+                    rejected.append((rows[k], self._wrong_class(topic, channel, type(message))))
+            logs = logs[accepted]
+        publish = np.where(result.t_ns >= 0, result.t_ns, logs)
+        self._mcap.add_messages(channel.channel_id, result.cdr, result.seq, logs, publish)
+        return True
+
+    # -- flushing, closing
+
+    def _flush_locked(self, *, due_only: bool, margin_s: float = 0.0) -> None:
+        now_s = time.perf_counter()
+        if due_only and now_s - self._last_flush_s < self._flush_interval_s - margin_s:
+            return
+        self._mcap.close_chunks()
         self._last_flush_s = now_s
 
     def flush(self) -> None:
-        """Close the current chunk and hand it to the OS now."""
+        """Close the open chunks and hand them to the OS now."""
         with self._lock:
-            if self._closed:
-                return
-            try:
-                self._flush_locked(time.perf_counter())
-            except OSError as exc:
-                raise DataError(
-                    f"cannot write file: {exc.strerror or exc}", path=self.path
-                ) from None
+            if not self._closed:
+                with self._io_errors():
+                    self._flush_locked(due_only=False)
+
+    def flush_if_due(self, margin_s: float = 0.0) -> None:
+        """Close the open chunks if the last flush is ``flush_interval_s - margin_s`` old.
+
+        A caller that writes every ``margin_s`` at most (a batching recorder) passes it, so
+        that nothing stays in an open chunk longer than ``flush_interval_s``.
+        """
+        with self._lock:
+            if not self._closed:
+                with self._io_errors():
+                    self._flush_locked(due_only=True, margin_s=margin_s)
 
     def close(self) -> None:
         """Write the summary and footer and close the file (idempotent)."""
@@ -257,12 +430,8 @@ class SessionWriter:
                 return
             self._closed = True
             try:
-                self._writer.finish()
-                self._durable = self._written
-            except OSError as exc:
-                raise DataError(
-                    f"cannot write file: {exc.strerror or exc}", path=self.path
-                ) from None
+                with self._io_errors():
+                    self._mcap.finish()
             finally:
                 self._file.close()
 
@@ -278,6 +447,15 @@ class SessionWriter:
     ) -> None:
         """Close the file (also on error, so what was written stays readable)."""
         self.close()
+
+
+@contextmanager
+def _io_errors(path: Path) -> Iterator[None]:
+    """Turn an OSError into a DataError naming ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        raise DataError(f"cannot write file: {exc.strerror or exc}", path=path) from None
 
 
 # --------------------------------------------------------------------------- reading
@@ -304,10 +482,11 @@ class SessionReader:
 
     Opening scans the whole file once (checking chunk CRCs) and raises DataError naming the
     file for anything that is not a readable MCAP. Iterating yields ``(topic, log_time_ns,
-    message)`` in log-time order, decompressing one chunk at a time; ``message`` is a
-    :mod:`teleop_force.transport.messages` object for this project's schemas, the decoded JSON
-    value for
-    other JSON channels, and the raw bytes otherwise.
+    message)`` in log-time order (equal log times: in file order), decompressing one chunk at a
+    time; ``message`` is a :mod:`teleop_force.transport.messages` object for this project's
+    schemas (CDR ``teleop_force/msg/...`` or, in recordings made before the CDR encoding, JSON
+    ``teleop_force....``), the decoded JSON value for other JSON channels, and the raw bytes
+    otherwise. :attr:`topics` maps each key to its schema name.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
@@ -502,6 +681,8 @@ class SessionReader:
                 yield self._channels[item.channel_id], item
 
     def _decode(self, channel: Channel, record: Message) -> Any:
+        if channel.message_encoding == cdr.MESSAGE_ENCODING:
+            return self._decode_cdr(channel, record)
         if channel.message_encoding != "json":
             return record.data
         try:
@@ -524,6 +705,80 @@ class SessionReader:
                 path=self.path,
                 column=channel.topic,
             ) from None
+
+    def _decode_cdr(self, channel: Channel, record: Message) -> Any:
+        schema = self._schemas.get(channel.schema_id)
+        cls = None
+        if schema is not None and schema.encoding == cdr.SCHEMA_ENCODING:
+            cls = cdr.MESSAGE_CLASSES_BY_CDR_SCHEMA.get(schema.name)
+        if cls is None:
+            return record.data
+        try:
+            return cdr.decode_cdr(cls, record.data)
+        except MessageError as exc:
+            raise DataError(
+                f"bad {cls.__name__} at log time {record.log_time} ns: {exc}",
+                path=self.path,
+                column=channel.topic,
+            ) from None
+
+
+# --------------------------------------------------------------------------- JSON export
+
+
+@dataclass(frozen=True)
+class SessionExport:
+    """What :func:`export_session_json` wrote.
+
+    Attributes:
+        source: The session read.
+        target: The JSON session written.
+        messages: Messages written.
+        skipped: Messages of channels that are not this project's (not written).
+
+    """
+
+    source: Path
+    target: Path
+    messages: int
+    skipped: int
+
+    def __post_init__(self) -> None:
+        """Check the counts."""
+        if self.messages < 0 or self.skipped < 0:
+            raise ConfigurationError("message counts must be >= 0")
+
+
+def export_session_json(
+    source_path: str | os.PathLike[str], target_path: str | os.PathLike[str]
+) -> SessionExport:
+    """Rewrite a session (CDR or JSON, complete or truncated) with JSON channels.
+
+    The target has the layout of recordings made before the CDR encoding (format version 1:
+    one ``json`` channel per key with a ``jsonschema`` schema per class), the same messages
+    with the same log times, and the source's metadata plus ``exported_from``. Channels that
+    are not this project's are left out (counted in ``skipped``). Raise DataError if the
+    source cannot be read or the target written, ConfigurationError if they are one file.
+    """
+    source, target = Path(source_path), Path(target_path)
+    if target.exists() and source.exists() and target.resolve() == source.resolve():
+        raise ConfigurationError(f"export target {target} is the source itself")
+    reader = SessionReader(source)
+    metadata = {
+        k: v
+        for k, v in reader.metadata.items()
+        if k not in ("format", "format_version", "message_encoding")
+    }
+    metadata["exported_from"] = str(source)
+    written = skipped = 0
+    with SessionWriter(target, metadata, message_encoding="json") as writer:
+        for topic, log_time_ns, message in reader.messages():
+            if isinstance(message, _MESSAGE_CLASSES):
+                writer.write(topic, message, log_time_ns)
+                written += 1
+            else:
+                skipped += 1
+    return SessionExport(source, target, written, skipped)
 
 
 # --------------------------------------------------------------------------- to Recording
@@ -577,37 +832,20 @@ def read_session_as_recording(path: str | os.PathLike[str], device: str | None =
     reader = SessionReader(path)
     device = _pick_device(reader, device)
     js_key, cf_key = keys.measured_js(device), keys.measured_cf(device)
-    stamps: list[int] = []
-    rows: list[tuple[float, ...]] = []
+    joint_states = read_joint_state_arrays(reader.path, js_key)
     f_stamps: list[int] = []
     forces: list[tuple[float, ...]] = []
-    n_joints = None
-    for topic, _, message in reader.messages([js_key, cf_key]):
-        if topic == js_key:
-            if not isinstance(message, msg.JointState):
-                raise DataError(f"{js_key} does not hold JointState messages", path=reader.path)
-            if n_joints is None:
-                n_joints = message.n_joints
-            elif message.n_joints != n_joints:
-                raise DataError(
-                    f"joint count changes from {n_joints} to {message.n_joints} "
-                    f"at seq {message.seq}",
-                    path=reader.path,
-                    column=js_key,
-                )
-            stamps.append(message.t_ns)
-            rows.append(message.q_rad + message.effort_nm)
-        elif isinstance(message, msg.ContactForce):
+    for _, _, message in reader.messages([cf_key]):
+        if isinstance(message, msg.ContactForce):
             f_stamps.append(message.t_ns)
             forces.append(message.f_n)
-    t_ns = np.asarray(stamps, dtype=np.int64)
-    table = np.asarray(rows, dtype=np.float64)
+    n_joints = joint_states.n_joints
+    t_ns = joint_states.t_ns
+    table = np.hstack((joint_states.q_rad, joint_states.effort_nm))
     order = np.argsort(t_ns, kind="stable")
     t_ns, table = t_ns[order], table[order]
     keep = np.concatenate(([True], np.diff(t_ns) > 0))
     t_ns, table = t_ns[keep], table[keep]
-    if n_joints is None:  # pragma: no cover - _pick_device found joint states
-        raise DataError(f"no joint states on {js_key}", path=reader.path)
     force = None
     if forces:
         fs = np.asarray(f_stamps, dtype=np.int64)
