@@ -16,12 +16,37 @@ surface gives ``f_y < 0``. The plant applies ``-J^T F = J^T F_env`` at the joint
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from teleop_force.compiled import njit_cached
 from teleop_force.errors import ConfigurationError, DataError
+
+
+@njit_cached()
+def plane_contact_force(
+    parameters: np.ndarray, px: float, py: float, pz: float, vx: float, vy: float, vz: float
+) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """Force of the tissue ON THE TIP, ``F_env = -F`` [N], at one tip position and velocity.
+
+    ``parameters`` is :attr:`PlaneContact.kernel_parameters`: the normal ``n``, the surface
+    point, ``k``, ``lambda`` and ``mu_t``. The one definition of the force law (compiled), for
+    the plant's kernels and :meth:`PlaneContact.environment_force_floats`.
+    """
+    nx, ny, nz = parameters[0], parameters[1], parameters[2]
+    cx, cy, cz = parameters[3], parameters[4], parameters[5]
+    distance = (px - cx) * nx + (py - cy) * ny + (pz - cz) * nz
+    if distance >= 0.0:
+        return 0.0, 0.0, 0.0
+    v_normal = vx * nx + vy * ny + vz * nz
+    f_n = -parameters[6] * distance * (1.0 - parameters[7] * v_normal)
+    if f_n <= 0.0:
+        return 0.0, 0.0, 0.0
+    drag = parameters[8] * f_n
+    tx, ty, tz = vx - v_normal * nx, vy - v_normal * ny, vz - v_normal * nz
+    return f_n * nx - drag * tx, f_n * ny - drag * ty, f_n * nz - drag * tz
 
 
 def _vector3(name: str, value: object) -> tuple[float, float, float]:
@@ -50,6 +75,7 @@ class PlaneContact:
     stiffness_n_per_m: float = 300.0
     damping_s_per_m: float = 5.0
     sliding_friction_s_per_m: float = 4.0
+    _kernel_parameters: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -67,6 +93,22 @@ class PlaneContact:
             object.__setattr__(self, name, value)
         if self.stiffness_n_per_m == 0.0:
             raise ConfigurationError("stiffness_n_per_m must be > 0")
+        packed = np.array(
+            [
+                *self.normal_in_base,
+                *self.point_in_base_m,
+                self.stiffness_n_per_m,
+                self.damping_s_per_m,
+                self.sliding_friction_s_per_m,
+            ]
+        )
+        packed.flags.writeable = False
+        object.__setattr__(self, "_kernel_parameters", packed)
+
+    @property
+    def kernel_parameters(self) -> np.ndarray:
+        """The parameters packed for :func:`plane_contact_force` (read-only, 9 values)."""
+        return self._kernel_parameters
 
     @classmethod
     def horizontal(cls, surface_y_m: float, **parameters: float) -> PlaneContact:
@@ -120,19 +162,17 @@ class PlaneContact:
     def environment_force_floats(
         self, px: float, py: float, pz: float, vx: float, vy: float, vz: float
     ) -> tuple[float, float, float]:
-        """Fast scalar path: force of the tissue ON THE TIP, ``F_env = -F`` [N]."""
-        nx, ny, nz = self.normal_in_base
-        cx, cy, cz = self.point_in_base_m
-        distance = (px - cx) * nx + (py - cy) * ny + (pz - cz) * nz
-        if distance >= 0.0:
-            return 0.0, 0.0, 0.0
-        v_normal = vx * nx + vy * ny + vz * nz
-        f_n = -self.stiffness_n_per_m * distance * (1.0 - self.damping_s_per_m * v_normal)
-        if f_n <= 0.0:
-            return 0.0, 0.0, 0.0
-        drag = self.sliding_friction_s_per_m * f_n
-        tx, ty, tz = vx - v_normal * nx, vy - v_normal * ny, vz - v_normal * nz
-        return f_n * nx - drag * tx, f_n * ny - drag * ty, f_n * nz - drag * tz
+        """Scalar path (compiled, :func:`plane_contact_force`): force ON THE TIP, ``F_env = -F``."""
+        force: tuple[float, float, float] = plane_contact_force(
+            self._kernel_parameters,
+            float(px),
+            float(py),
+            float(pz),
+            float(vx),
+            float(vy),
+            float(vz),
+        )
+        return force
 
 
 def _points(value: ArrayLike, name: str) -> np.ndarray:

@@ -24,6 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from teleop_force.compiled import njit_cached
 from teleop_force.errors import ConfigurationError, DataError
 
 #: Default width of the smoothed sign of the friction-like effects [rad/s].
@@ -372,6 +373,152 @@ class CrossDirectionOffset(DirectionOffset):
 
     name: ClassVar[str] = "cross-direction-offset"
     direction_joint: int | None = 0
+
+
+# -- compiled evaluation (the plant's sub-steps) -----------------------------------------------
+
+_COGGING, _POSITION, _DRIFTING, _LOAD, _ELBOW, _DIRECTION = range(6)
+#: Columns of :func:`effect_kernel_table`: code, joint, then up to 5 parameters.
+KERNEL_TABLE_COLUMNS = 7
+
+
+def _kernel_row(effect: PlantEffect) -> tuple[float, ...] | None:
+    # Exact types only: a subclass may redefine the torque, so it keeps the Python path.
+    j = float(effect.joint)
+    if type(effect) is Cogging:
+        return (_COGGING, j, effect.amplitude_nm, effect.wavenumber_per_rad, effect.phase_rad)
+    if type(effect) is PositionDependentFriction:
+        return (
+            _POSITION,
+            j,
+            effect.coulomb_nm,
+            effect.wavenumber_per_rad,
+            effect.phase_rad,
+            effect.smoothing_velocity_rad_s,
+        )
+    if type(effect) is DriftingFriction:
+        return (_DRIFTING, j, effect.rate_nm_per_s, effect.smoothing_velocity_rad_s)
+    if type(effect) is LoadDependentFriction:
+        return (_LOAD, j, effect.coefficient, effect.smoothing_velocity_rad_s)
+    if type(effect) is ElbowAngleBump:
+        return (
+            _ELBOW,
+            j,
+            effect.amplitude_nm,
+            effect.centre_rad,
+            effect.width_rad,
+            float(effect.first),
+            float(effect.second),
+        )
+    if isinstance(effect, DirectionOffset) and type(effect) in _DIRECTION_TYPES:
+        return (
+            _DIRECTION,
+            j,
+            effect.offset_nm,
+            effect.smoothing_velocity_rad_s,
+            float(effect.switching_joint),
+        )
+    return None
+
+
+_DIRECTION_TYPES = (DirectionOffset, CrossDirectionOffset)
+
+
+def _highest_joint_read(effect: PlantEffect) -> int:
+    if isinstance(effect, ElbowAngleBump):
+        return max(effect.joint, effect.first, effect.second)
+    return max(effect.joint, effect.inputs_joint)
+
+
+def effect_kernel_table(effects: Sequence[PlantEffect], n_joints: int = 3) -> np.ndarray | None:
+    """Pack ``effects`` for :func:`effects_torque_slope` ((E, 7)), or ``None`` if one is unknown.
+
+    Only the built-in effect classes (exactly, not subclasses) are compiled; ``None`` also when
+    an effect reads a joint beyond ``n_joints`` (the Python path reports it).
+    """
+    table = np.zeros((len(effects), KERNEL_TABLE_COLUMNS))
+    for row, effect in enumerate(effects):
+        values = _kernel_row(effect)
+        if values is None or _highest_joint_read(effect) >= n_joints:
+            return None
+        table[row, : len(values)] = values
+    table.flags.writeable = False
+    return table
+
+
+@njit_cached()
+def _pick(index: int, a: float, b: float, c: float) -> float:  # pragma: no cover - compiled
+    if index == 0:
+        return a
+    if index == 1:
+        return b
+    return c
+
+
+@njit_cached()
+def effects_torque_slope(
+    table: np.ndarray,
+    t_s: float,
+    q0: float,
+    q1: float,
+    q2: float,
+    v0: float,
+    v1: float,
+    v2: float,
+    tau0: float,
+    tau1: float,
+    tau2: float,
+) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled
+    """Sum the torques and ``d torque_j / d qd_j`` of a 3-joint effect table at one sample.
+
+    The compiled twin of the classes' ``joint_torque`` and ``velocity_slope`` (same formulas,
+    same order of operations); ``table`` comes from :func:`effect_kernel_table`. Returns
+    ``(torque_1..3, slope_1..3)``.
+    """
+    e0 = e1 = e2 = 0.0
+    s0 = s1 = s2 = 0.0
+    for row in range(table.shape[0]):
+        code = int(table[row, 0])
+        joint = int(table[row, 1])
+        p = table[row]
+        torque = 0.0
+        slope = 0.0
+        if code == _COGGING:
+            torque = p[2] * math.sin(p[3] * _pick(joint, q0, q1, q2) + p[4])
+        elif code == _POSITION:
+            level = 0.5 * p[2] * (1.0 + math.sin(p[3] * _pick(joint, q0, q1, q2) + p[4]))
+            sign = math.tanh(_pick(joint, v0, v1, v2) / p[5])
+            torque = level * sign
+            slope = level * ((1.0 - sign * sign) / p[5])
+        elif code == _DRIFTING:
+            sign = math.tanh(_pick(joint, v0, v1, v2) / p[3])
+            torque = p[2] * t_s * sign
+            slope = p[2] * t_s * ((1.0 - sign * sign) / p[3])
+        elif code == _LOAD:
+            sign = math.tanh(_pick(joint, v0, v1, v2) / p[3])
+            torque = p[2] * abs(_pick(joint, tau0, tau1, tau2)) * sign
+            slope = p[2] * abs(_pick(joint, tau0, tau1, tau2)) * ((1.0 - sign * sign) / p[3])
+        elif code == _ELBOW:
+            first = _pick(int(p[5]), q0, q1, q2)
+            second = _pick(int(p[6]), q0, q1, q2)
+            x = (first - second - p[3]) / p[4]
+            torque = p[2] * math.exp(-x * x) * (1.0 + math.tanh(x / 0.3))
+        else:  # _DIRECTION
+            switching = int(p[4])
+            sign = math.tanh(_pick(switching, v0, v1, v2) / p[3])
+            torque = 0.5 * p[2] * (1.0 + sign)
+            if switching == joint:
+                slope = 0.5 * p[2] * ((1.0 - sign * sign) / p[3])
+        if joint == 0:
+            e0 += torque
+            s0 += slope
+        elif joint == 1:
+            e1 += torque
+            s1 += slope
+        else:
+            e2 += torque
+            s2 += slope
+    return e0, e1, e2, s0, s1, s2
 
 
 EffectFactory = Callable[[int, float], PlantEffect]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop_force.compiled import njit_cached
 from teleop_force.errors import ConfigurationError, DataError
 
 
@@ -84,8 +85,45 @@ class PIDGains:
         )
 
 
+@njit_cached()
+def _pid_update(
+    constants: np.ndarray,
+    a: float,
+    gain: float,
+    has_previous: bool,
+    integral: np.ndarray,
+    velocity: np.ndarray,
+    q_previous: np.ndarray,
+    q_ref: np.ndarray,
+    q: np.ndarray,
+    qd_ref: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """One update (module docstring): ``out`` rows are tau, the new integral, velocity and q.
+
+    ``constants`` rows are ``kp, ki dt, kd, I_max, u_max``; ``gain = (1 - a) / dt``.
+    """
+    for j in range(q.size):
+        v = velocity[j]
+        if has_previous:
+            v = a * v + gain * (q[j] - q_previous[j])
+        error = q_ref[j] - q[j]
+        u = constants[0, j] * error + integral[j] + constants[2, j] * (qd_ref[j] - v)
+        u_max = constants[4, j]
+        tau = u_max if u > u_max else (-u_max if u < -u_max else u)
+        increment = constants[1, j] * error
+        i_next = integral[j]
+        if tau == u or increment * u <= 0.0:  # anti-windup: freeze while pushing the limit
+            i_max = constants[3, j]
+            i_next = min(i_max, max(-i_max, i_next + increment))
+        out[0, j] = tau
+        out[1, j] = i_next
+        out[2, j] = v
+        out[3, j] = q[j]
+
+
 class PID:
-    """Streaming joint-space PID (formula in the module docstring)."""
+    """Streaming joint-space PID (formula in the module docstring; the update is compiled)."""
 
     def __init__(self, gains: PIDGains, n_joints: int = 3, control_period_s: float = 1e-3) -> None:
         """Create a controller for ``n_joints`` joints sampled every ``control_period_s``."""
@@ -106,20 +144,38 @@ class PID:
         except ValueError as error:
             raise ConfigurationError(f"PID gains do not fit {n_joints} joints: {error}") from error
         self._a = math.exp(-2.0 * math.pi * gains.derivative_cutoff_hz * self.control_period_s)
-        # Per-joint constants as floats: the update runs a plain loop (faster than numpy for n=3).
-        self._per_joint = tuple(
-            zip(
-                self._kp.tolist(),
-                (self._ki * self.control_period_s).tolist(),
-                self._kd.tolist(),
-                self._i_max.tolist(),
-                self._u_max.tolist(),
-                strict=True,
-            )
+        self._gain = (1.0 - self._a) / self.control_period_s
+        # Per-joint constants for the compiled update: kp, ki dt, kd, I_max, u_max.
+        self._constants = np.stack(
+            [self._kp, self._ki * self.control_period_s, self._kd, self._i_max, self._u_max]
         )
+        self._zeros = np.zeros(shape)
+        self._warm_up()
         self.integral_nm = np.zeros(shape)
         self.velocity_rad_s = np.zeros(shape)
         self.q_previous_rad: np.ndarray | None = None
+
+    def _warm_up(self) -> None:
+        # Compile (or load from numba's cache) the update for writable and read-only measured
+        # angles (a DeviceReading's), here rather than in the first control tick.
+        scratch = np.zeros(self.n_joints)
+        frozen = scratch.copy()
+        frozen.flags.writeable = False
+        out = np.empty((4, self.n_joints))
+        for q in (scratch, frozen):
+            _pid_update(
+                self._constants,
+                self._a,
+                self._gain,
+                True,
+                scratch,
+                scratch,
+                scratch,
+                scratch,
+                q,
+                scratch,
+                out,
+            )
 
     def reset(self, integral_nm: np.ndarray | None = None) -> None:
         """Clear the state; optionally preset the integral term (e.g. the holding torque)."""
@@ -147,33 +203,27 @@ class PID:
                 f"expected {n} reference and measured angles, got {q_ref.shape}, {q.shape}"
             )
         if qd_ref_rad_s is None:
-            qd_ref = [0.0] * n
+            qd_ref = self._zeros
         else:
-            qd_ref_array = np.asarray(qd_ref_rad_s, dtype=float)
-            if qd_ref_array.shape != (n,):
-                raise DataError(f"expected {n} reference velocities, got {qd_ref_array.shape}")
-            qd_ref = qd_ref_array.tolist()
-        q_list = q.tolist()
-        q_ref_list = q_ref.tolist()
-        velocity = self.velocity_rad_s.tolist()
-        if self.q_previous_rad is not None:
-            a = self._a
-            gain = (1.0 - a) / self.control_period_s
-            velocity = [
-                a * v + gain * (x - x_prev)
-                for v, x, x_prev in zip(velocity, q_list, self.q_previous_rad.tolist(), strict=True)
-            ]
-        integral = self.integral_nm.tolist()
-        tau = [0.0] * n
-        for j, (kp, ki_dt, kd, i_max, u_max) in enumerate(self._per_joint):
-            error = q_ref_list[j] - q_list[j]
-            u = kp * error + integral[j] + kd * (qd_ref[j] - velocity[j])
-            tau_j = u_max if u > u_max else (-u_max if u < -u_max else u)
-            increment = ki_dt * error
-            if tau_j == u or increment * u <= 0.0:  # anti-windup: freeze while pushing the limit
-                integral[j] = min(i_max, max(-i_max, integral[j] + increment))
-            tau[j] = tau_j
-        self.q_previous_rad = q.copy()
-        self.velocity_rad_s = np.array(velocity)
-        self.integral_nm = np.array(integral)
-        return np.array(tau)
+            qd_ref = np.asarray(qd_ref_rad_s, dtype=float)
+            if qd_ref.shape != (n,):
+                raise DataError(f"expected {n} reference velocities, got {qd_ref.shape}")
+        previous = self.q_previous_rad
+        out = np.empty((4, n))
+        _pid_update(
+            self._constants,
+            self._a,
+            self._gain,
+            previous is not None,
+            np.asarray(self.integral_nm, dtype=float),
+            np.asarray(self.velocity_rad_s, dtype=float),
+            self._zeros if previous is None else np.asarray(previous, dtype=float),
+            q_ref,
+            q,
+            qd_ref,
+            out,
+        )
+        self.integral_nm = out[1]
+        self.velocity_rad_s = out[2]
+        self.q_previous_rad = out[3]
+        return out[0]

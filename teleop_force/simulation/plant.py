@@ -25,6 +25,12 @@ friction or gravity, the mechanical energy drifts by ~0.3 % over 1 s.
 
 Measured angles are quantized to the encoder resolution. All randomness (actuator noise) comes
 from one seeded :class:`numpy.random.Generator`, so a run is reproducible.
+
+Speed: the state lives in one float workspace; a tick is one compiled call
+(:mod:`~teleop_force.simulation.plant_kernels`), one ``computeAllTerms`` and one compiled
+refresh, so ``read``, ``command_torque`` and ``step`` cost a few microseconds each. Effects of
+classes the kernels do not know (subclasses, custom :class:`PlantEffect`) switch the plant to a
+Python integrator with the same formulas.
 """
 
 from __future__ import annotations
@@ -36,13 +42,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
+from numpy.typing import ArrayLike
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError
 from teleop_force.robots import omni
 from teleop_force.robots.description import Robot, RobotDescription
-from teleop_force.robots.device import Device, DeviceReading
+from teleop_force.robots.device import Device, DeviceReading, TorqueCommand
+from teleop_force.simulation import plant_kernels as kernels
 from teleop_force.simulation.contact import PlaneContact
-from teleop_force.simulation.effects import PlantEffect
+from teleop_force.simulation.effects import PlantEffect, effect_kernel_table
 from teleop_force.simulation.true_friction import TrueFriction
 
 _NOISE_BLOCK_TICKS = 4096
@@ -97,23 +105,28 @@ class PlantConfig:
 
 
 class _RigidBodyTerms:
-    """Fast per-tick evaluation of ``M``, ``C qd + N``, ``J`` and ``p`` in motor coordinates.
+    """Per-tick evaluation of ``M``, ``C qd + N``, ``J`` and ``p`` in motor coordinates.
 
-    Same numbers as :class:`Robot`'s methods (tested), with one ``computeAllTerms`` call.
+    Same numbers as :class:`Robot`'s methods (tested), with one ``computeAllTerms`` call; the
+    coupling to motor coordinates is :func:`~teleop_force.simulation.plant_kernels.refresh_terms`.
     """
 
     def __init__(self, robot: Robot) -> None:
         self.model = robot.model
         self.data = robot.model.createData()
         self.coupling = robot.coupling
-        self.coupling_t = robot.coupling.T.copy()
-        self.rotor = np.diag(robot.description.rotor_inertia_kgm2)
+        self.rotor = np.asarray(robot.description.rotor_inertia_kgm2, dtype=float)
         tip = robot.description.tip_frame
         if tip is None:
             raise ModelError(f"{robot.description.name}: the plant needs a tip frame")
         self.tip = self.model.getFrameId(tip)
-        self._strict_upper = np.triu(np.ones((robot.n, robot.n), dtype=bool), 1)
-        self._fills_both_triangles = self._check_fills_both_triangles(robot.n)
+        self.fills_both_triangles = self._check_fills_both_triangles(robot.n)
+        # pinocchio hands out views of its data: kept once when they stay valid (they do in
+        # the releases we know), else fetched every tick.
+        self._mass_view, self._bias_view, self._tip_view = first = self._views()
+        self._views_persist = all(
+            np.shares_memory(a, b) for a, b in zip(first, self._views(), strict=True)
+        )
 
     def _check_fills_both_triangles(self, n: int) -> bool:
         # Older pinocchio releases fill only the upper triangle of M; newer ones both.
@@ -122,22 +135,88 @@ class _RigidBodyTerms:
         pin.computeAllTerms(self.model, self.data, q, q)
         return bool(np.allclose(self.data.M, self.data.M.T))
 
+    def _views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.data.M, self.data.nle, self.data.oMf[self.tip].translation
+
+    def refresh(
+        self,
+        ws: np.ndarray,
+        q_model: np.ndarray,
+        qd_model: np.ndarray,
+        constants: np.ndarray,
+        contact: np.ndarray,
+    ) -> None:
+        """Evaluate pinocchio at ``(q_model, qd_model)`` (views of ``ws``); refresh ``ws``."""
+        model, data, tip = self.model, self.data, self.tip
+        pin.computeAllTerms(model, data, q_model, qd_model)
+        pin.updateFramePlacement(model, data, tip)
+        jacobian = pin.getFrameJacobian(model, data, tip, pin.LOCAL_WORLD_ALIGNED)
+        if self._views_persist:
+            mass, bias, position = self._mass_view, self._bias_view, self._tip_view
+        else:
+            mass, bias, position = self._views()
+        kernels.refresh_terms(ws, constants, contact, mass, bias, jacobian, position)
+
     def evaluate(
         self, q: np.ndarray, qd: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Return ``(M, C qd + N, J, p)``."""
-        # ndarray.dot: a third of the overhead of ``@`` on 3x3 operands.
-        model, data, coupling, coupling_t = self.model, self.data, self.coupling, self.coupling_t
-        pin.computeAllTerms(model, data, coupling.dot(q), coupling.dot(qd))
-        m = data.M
-        if not self._fills_both_triangles:
-            m = np.where(self._strict_upper.T, m.T, m)
-        mass = coupling_t.dot(m).dot(coupling)
-        mass += self.rotor
-        bias = coupling_t.dot(data.nle)
-        pin.updateFramePlacement(model, data, self.tip)
-        jac = pin.getFrameJacobian(model, data, self.tip, pin.LOCAL_WORLD_ALIGNED)[:3].dot(coupling)
-        return mass, bias, jac, data.oMf[self.tip].translation.copy()
+        """Return ``(M, C qd + N, J, p)`` at motor angles ``q`` and velocities ``qd``."""
+        ws = np.zeros(kernels.WORKSPACE_SIZE)
+        ws[kernels.Q : kernels.Q + 3] = q
+        ws[kernels.QD : kernels.QD + 3] = qd
+        constants = _constants(PlantConfig(), self, ())
+        kernels.to_model_coordinates(ws, constants)
+        q_model = ws[kernels.Q_MODEL : kernels.Q_MODEL + 3]
+        qd_model = ws[kernels.QD_MODEL : kernels.QD_MODEL + 3]
+        self.refresh(ws, q_model, qd_model, constants, np.zeros(0))
+        return (
+            ws[kernels.MASS : kernels.MASS + 9].reshape(3, 3).copy(),
+            ws[kernels.BIAS : kernels.BIAS + 3].copy(),
+            ws[kernels.JACOBIAN : kernels.JACOBIAN + 9].reshape(3, 3).copy(),
+            ws[kernels.TIP : kernels.TIP + 3].copy(),
+        )
+
+
+def _constants(
+    config: PlantConfig, terms: _RigidBodyTerms, springs: Sequence[tuple[int, float, float]]
+) -> np.ndarray:
+    """Pack the plant's constants in the layout of :mod:`~teleop_force.simulation.plant_kernels`."""
+    constants = np.zeros(kernels.CONSTANTS_SIZE)
+    constants[kernels.SUBSTEP_S] = config.control_period_s / config.substeps
+    constants[kernels.SUBSTEPS] = config.substeps
+    constants[kernels.PERIOD_S] = config.control_period_s
+    constants[kernels.RESOLUTION_RAD] = config.encoder_resolution_rad
+    for joint, rest_angle, stiffness in springs:
+        if constants[kernels.SPRINGS + 2 * joint] != 0.0:
+            raise ModelError(f"two springs on joint {joint + 1} are not supported")
+        constants[kernels.SPRINGS + 2 * joint] = stiffness
+        constants[kernels.SPRINGS + 2 * joint + 1] = rest_angle
+    constants[kernels.FILLS_BOTH_TRIANGLES] = float(terms.fills_both_triangles)
+    constants[kernels.COUPLING : kernels.COUPLING + 9] = np.asarray(terms.coupling).ravel()
+    constants[kernels.ROTOR : kernels.ROTOR + 3] = terms.rotor
+    return constants
+
+
+def _reading(t_s: float, values: np.ndarray) -> DeviceReading:
+    """Build a :class:`DeviceReading` from 9 finite floats (angles, torques, force), unchecked.
+
+    The hot path of :meth:`SimulatedOmni.read`: the value the validating constructor builds
+    (read-only float 3-vectors, here views of one immutable copy, and a float time; tested) at
+    a sixth of its cost.
+    """
+    frozen = np.frombuffer(values.tobytes())  # read-only: backed by bytes
+    reading = DeviceReading.__new__(DeviceReading)
+    vars(reading).update(
+        t_s=t_s, q_rad=frozen[0:3], tau_nm=frozen[3:6], f_tip_in_base_n=frozen[6:9]
+    )
+    return reading
+
+
+def _torque_command(tau_nm: np.ndarray, clipped: np.ndarray) -> TorqueCommand:
+    """Build a :class:`TorqueCommand` without its dataclass ``__init__`` (hot path)."""
+    command = TorqueCommand.__new__(TorqueCommand)
+    vars(command).update(tau_nm=tau_nm, clipped=clipped)
+    return command
 
 
 class SimulatedOmni(Device):
@@ -174,33 +253,100 @@ class SimulatedOmni(Device):
         self.description = description
         self.robot = Robot(description)
         self._terms = _RigidBodyTerms(self.robot)
+        self._springs = tuple(
+            (s.joint, s.rest_angle_rad, self.config.spring_stiffness_nm_per_rad)
+            for s in description.springs
+        )
+        self._constants = _constants(self.config, self._terms, self._springs)
+        self._limit = np.broadcast_to(self._torque_limit_nm, (3,)).copy()
+        # The whole state, in the layout of plant_kernels; the attributes below are views.
+        self._ws = np.zeros(kernels.WORKSPACE_SIZE)
+        ws = self._ws
+        self._q = ws[kernels.Q : kernels.Q + 3]
+        self._qd = ws[kernels.QD : kernels.QD + 3]
+        self._q_model = ws[kernels.Q_MODEL : kernels.Q_MODEL + 3]
+        self._qd_model = ws[kernels.QD_MODEL : kernels.QD_MODEL + 3]
+        self._tau_commanded = ws[kernels.TAU_COMMANDED : kernels.TAU_COMMANDED + 3]
+        self._tau_applied = ws[kernels.TAU_APPLIED : kernels.TAU_APPLIED + 3]
+        self._mass = ws[kernels.MASS : kernels.MASS + 9].reshape(3, 3)
+        self._jac = ws[kernels.JACOBIAN : kernels.JACOBIAN + 9].reshape(3, 3)
+        self._p = ws[kernels.TIP : kernels.TIP + 3]
+        self._q_measured = ws[kernels.Q_MEASURED : kernels.Q_MEASURED + 3]
+        self._force = ws[kernels.FORCE : kernels.FORCE + 3]
+        self._reading_values = ws[kernels.READING : kernels.READING + 9]
+        self._effects: tuple[PlantEffect, ...] = ()
+        self._effect_table: np.ndarray | None = np.zeros((0, 7))
+        self.effects = tuple(effects)
+        self._contact: PlaneContact | None = None
+        self._contact_parameters = np.zeros(0)
+        self._friction: TrueFriction | None = None
+        self._friction_parameters = np.zeros(0)
+        self.friction = self.config.friction
+        self._rng = np.random.default_rng(seed)
+        self._noise = np.zeros((0, 3))
+        self._noise_index = 0
+        q0 = 0.5 * (description.q_min_rad + description.q_max_rad) if q0_rad is None else q0_rad
+        self._set_state(q0, np.zeros(3) if qd0_rad_s is None else qd0_rad_s, None)
+        self.contact = contact
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        # Compile (or load from numba's cache) the tick's kernels here, not in the first tick.
+        scratch = self._ws.copy()
+        kernels.clip_command(np.zeros(3), self._limit, scratch, np.empty(3), np.empty(3, bool))
+        if self._effect_table is not None:
+            kernels.integrate_tick(
+                scratch,
+                self._constants,
+                self._friction_parameters,
+                self._contact_parameters,
+                self._effect_table,
+                self._noise,
+                -1,
+            )
+
+    # What acts on the plant (settable: the compiled parameters follow) -----------------------
+
+    @property
+    def effects(self) -> tuple[PlantEffect, ...]:
+        """The switched-on effects."""
+        return self._effects
+
+    @effects.setter
+    def effects(self, effects: Sequence[PlantEffect]) -> None:
         for effect in effects:
             if not isinstance(effect, PlantEffect):
                 raise ConfigurationError(f"not a plant effect: {effect!r}")
             if effect.joint >= 3:
                 raise ConfigurationError(f"{effect.name}: joint {effect.joint + 1} of 3")
-        self.effects: tuple[PlantEffect, ...] = tuple(effects)
-        self.contact = contact
-        self.friction = self.config.friction
-        self._springs = tuple(
-            (s.joint, s.rest_angle_rad, self.config.spring_stiffness_nm_per_rad)
-            for s in description.springs
+        self._effects = tuple(effects)
+        table = effect_kernel_table(self._effects, 3)
+        self._effect_table = None if table is None else np.array(table)
+
+    @property
+    def contact(self) -> PlaneContact | None:
+        """The tissue, or ``None``."""
+        return self._contact
+
+    @contact.setter
+    def contact(self, contact: PlaneContact | None) -> None:
+        self._contact = contact
+        self._contact_parameters = (
+            np.zeros(0) if contact is None else np.array(contact.kernel_parameters)
         )
-        stiffness = [0.0, 0.0, 0.0]
-        rest = [0.0, 0.0, 0.0]
-        for joint, rest_angle, k in self._springs:
-            if stiffness[joint] != 0.0:
-                raise ModelError(f"two springs on joint {joint + 1} are not supported")
-            stiffness[joint], rest[joint] = k, rest_angle
-        self._spring_floats = (stiffness[0], rest[0], stiffness[1], rest[1], stiffness[2], rest[2])
-        self._rng = np.random.default_rng(seed)
-        self._noise = np.zeros((0, 3))
-        self._noise_index = 0
-        self._tau_commanded = np.zeros(3)
-        self._tau_applied = np.zeros(3)
-        self._t_s = 0.0
-        q0 = 0.5 * (description.q_min_rad + description.q_max_rad) if q0_rad is None else q0_rad
-        self.set_state(q0, np.zeros(3) if qd0_rad_s is None else qd0_rad_s)
+        kernels.contact_force_into(self._ws, self._contact_parameters)
+
+    @property
+    def friction(self) -> TrueFriction | None:
+        """The true friction (``None``: frictionless)."""
+        return self._friction
+
+    @friction.setter
+    def friction(self, friction: TrueFriction | None) -> None:
+        self._friction = friction
+        self._friction_parameters = (
+            np.zeros(0) if friction is None else np.array(friction.kernel_parameters)
+        )
 
     # Device interface -------------------------------------------------------------------------
 
@@ -217,25 +363,56 @@ class SimulatedOmni(Device):
     def read(self) -> DeviceReading:
         """Quantized angles, last commanded torque and true tip force at the current tick."""
         self._check_open()
-        return DeviceReading(
-            t_s=self._t_s,
-            q_rad=self.measured_q_rad(),
-            tau_nm=self._tau_commanded,
-            f_tip_in_base_n=self.contact_force_in_base_n(),
-        )
+        return _reading(self._ws.item(kernels.TIME), self._reading_values)
+
+    def command_torque(self, tau_nm: ArrayLike) -> TorqueCommand:
+        """Clip ``tau_nm`` (3,) to the torque limit and send it; it acts from the next tick.
+
+        The base class's checks and clipping, compiled (same results and errors).
+
+        Raises:
+            DataError: on a wrong shape or a non-finite torque (nothing is sent).
+            DeviceClosedError: after :meth:`close`.
+
+        """
+        self._check_open()
+        tau = np.asarray(tau_nm, dtype=float)
+        if tau.shape != (3,):
+            raise DataError(f"expected {self.n_joints} torques, got shape {tau.shape}")
+        out = np.empty(3)
+        clipped = np.empty(3, dtype=bool)
+        count = kernels.clip_command(tau, self._limit, self._ws, out, clipped)
+        if count < 0:
+            raise DataError(f"non-finite torque command {tau}")
+        if count:
+            self._clip_count += 1
+        return _torque_command(out, clipped)
 
     def _send_torque(self, tau_nm: np.ndarray) -> None:
-        self._tau_commanded = tau_nm.copy()
+        self._tau_commanded[:] = tau_nm
 
     def _close(self) -> None:
-        self._tau_commanded = np.zeros(3)
+        self._tau_commanded[:] = 0.0
 
     def step(self) -> None:
         """Integrate one control tick under the last commanded torque plus actuator noise."""
         self._check_open()
-        self._tau_applied = self._tau_commanded + self._next_noise()
-        self._integrate_tick(self._tau_applied)
-        self._t_s += self.config.control_period_s
+        row = self._next_noise_row()
+        if self._effect_table is None:
+            self._tau_applied[:] = self._tau_commanded + (
+                self._noise[row] if row >= 0 else np.zeros(3)
+            )
+            self._integrate_tick_python(self._tau_applied.copy())
+        elif not kernels.integrate_tick(
+            self._ws,
+            self._constants,
+            self._friction_parameters,
+            self._contact_parameters,
+            self._effect_table,
+            self._noise,
+            row,
+        ):
+            raise ModelError(f"simulation diverged at t = {self.t_s:.4f} s")
         self._refresh()
 
     # Ground truth -----------------------------------------------------------------------------
@@ -243,7 +420,7 @@ class SimulatedOmni(Device):
     @property
     def t_s(self) -> float:
         """Simulated time [s]."""
-        return self._t_s
+        return self._ws.item(kernels.TIME)
 
     @property
     def q_true_rad(self) -> np.ndarray:
@@ -262,6 +439,9 @@ class SimulatedOmni(Device):
 
     def set_state(self, q_rad: np.ndarray, qd_rad_s: np.ndarray, t_s: float | None = None) -> None:
         """Teleport the plant to ``(q, qd)`` (and time ``t_s`` if given)."""
+        self._set_state(q_rad, qd_rad_s, t_s)
+
+    def _set_state(self, q_rad: ArrayLike, qd_rad_s: ArrayLike, t_s: float | None) -> None:
         q = np.asarray(q_rad, dtype=float).reshape(-1)
         qd = np.asarray(qd_rad_s, dtype=float).reshape(-1)
         if (
@@ -270,18 +450,16 @@ class SimulatedOmni(Device):
             or not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
         ):
             raise DataError(f"state needs 3 finite angles and velocities, got {q}, {qd}")
-        self._q = q.copy()
-        self._qd = qd.copy()
+        self._q[:] = q
+        self._qd[:] = qd
         if t_s is not None:
-            self._t_s = float(t_s)
+            self._ws[kernels.TIME] = float(t_s)
+        kernels.to_model_coordinates(self._ws, self._constants)
         self._refresh()
 
     def measured_q_rad(self) -> np.ndarray:
         """Return the encoder reading: the true angles rounded to the encoder resolution."""
-        resolution = self.config.encoder_resolution_rad
-        if resolution == 0.0:
-            return self._q.copy()
-        return np.rint(self._q / resolution) * resolution
+        return self._q_measured.copy()
 
     def tip_position_in_base_m(self) -> np.ndarray:
         """Return the true tip position [m]."""
@@ -293,24 +471,20 @@ class SimulatedOmni(Device):
 
     def contact_force_in_base_n(self) -> np.ndarray:
         """Return the true force of the tip on the environment [N] (zeros without contact)."""
-        if self.contact is None:
-            return np.zeros(3)
-        v = self._jac @ self._qd
-        fx, fy, fz = self.contact.environment_force_floats(*self._p.tolist(), *v.tolist())
-        return np.array([-fx, -fy, -fz])
+        return self._force.copy()
 
     def friction_torque_nm(self) -> np.ndarray:
         """Return the true friction torque at the current velocity (zeros without friction)."""
         if self.friction is None:
             return np.zeros(3)
-        return self.friction.torque(self._qd)
+        return self.friction.torque(self._qd.copy())
 
     def effects_torque_nm(self, tau_motor_nm: np.ndarray | None = None) -> np.ndarray:
         """Sum of the effects' torques at the current state (``tau_motor`` default: applied)."""
         tau = self._tau_applied if tau_motor_nm is None else np.asarray(tau_motor_nm, dtype=float)
         total = np.zeros(3)
         for effect in self.effects:
-            total += effect.torque(self._t_s, self._q, self._qd, tau)
+            total += effect.torque(self.t_s, self._q, self._qd, tau)
         return total
 
     def spring_torque_nm(self) -> np.ndarray:
@@ -322,7 +496,7 @@ class SimulatedOmni(Device):
 
     def holding_torque_nm(self, q_rad: np.ndarray | None = None) -> np.ndarray:
         """Torque that holds the plant still at ``q`` (gravity plus spring), default: now."""
-        q = self._q if q_rad is None else np.asarray(q_rad, dtype=float)
+        q = self._q.copy() if q_rad is None else np.asarray(q_rad, dtype=float)
         tau = self.robot.gravity_torque(q)
         for joint, rest, stiffness in self._springs:
             tau[joint] += stiffness * (q[joint] - rest)
@@ -341,27 +515,29 @@ class SimulatedOmni(Device):
 
     # Internals --------------------------------------------------------------------------------
 
-    def _next_noise(self) -> np.ndarray:
+    def _refresh(self) -> None:
+        self._terms.refresh(
+            self._ws, self._q_model, self._qd_model, self._constants, self._contact_parameters
+        )
+
+    def _next_noise_row(self) -> int:
+        """Row of the noise block for this tick (drawn 4096 ticks at a time), -1 for no noise."""
         std = self.config.torque_noise_std_nm
         if std == 0.0:
-            return np.zeros(3)
+            return -1
         if self._noise_index >= self._noise.shape[0]:
             self._noise = self._rng.normal(0.0, std, size=(_NOISE_BLOCK_TICKS, 3))
             self._noise_index = 0
-        noise = self._noise[self._noise_index]
         self._noise_index += 1
-        return noise
+        return self._noise_index - 1
 
-    def _refresh(self) -> None:
-        self._mass, self._bias, self._jac, self._p = self._terms.evaluate(self._q, self._qd)
-
-    def _integrate_tick(self, tau_applied: np.ndarray) -> None:
-        # Pure-float inner loop: numpy calls on 3-vectors cost ~1 us each, far more than the maths.
+    def _integrate_tick_python(self, tau_applied: np.ndarray) -> None:
+        # The kernel's integration in Python, for effects the kernels do not know (their
+        # ``joint_torque`` and ``velocity_slope`` are called at every sub-step).
         h = self.config.control_period_s / self.config.substeps
         m00, m01, m02, m10, m11, m12, m20, m21, m22 = self._mass.ravel().tolist()
-        b0, b1, b2 = self._bias.tolist()
+        b0, b1, b2 = self._ws[kernels.BIAS : kernels.BIAS + 3].tolist()
         t0, t1, t2 = tau_applied.tolist()
-        # Everything that does not change within the tick: tau - (C qd + N).
         r0, r1, r2 = t0 - b0, t1 - b1, t2 - b2
         j00, j01, j02, j10, j11, j12, j20, j21, j22 = self._jac.ravel().tolist()
         px0, py0, pz0 = self._p.tolist()
@@ -370,9 +546,11 @@ class SimulatedOmni(Device):
         v0, v1, v2 = self._qd.tolist()
         friction = self.friction.evaluate_floats if self.friction is not None else None
         contact = self.contact.environment_force_floats if self.contact is not None else None
-        spring0, rest0, spring1, rest1, spring2, rest2 = self._spring_floats
-        effects = self.effects
-        t = self._t_s
+        c = self._constants
+        spring0, rest0, spring1, rest1, spring2, rest2 = c[
+            kernels.SPRINGS : kernels.SPRINGS + 6
+        ].tolist()
+        t = self.t_s
         for _ in range(self.config.substeps):
             a0, a1, a2 = r0, r1, r2
             d00 = d11 = d12 = d21 = d22 = 0.0
@@ -397,14 +575,13 @@ class SimulatedOmni(Device):
                 a0 += j00 * fx + j10 * fy + j20 * fz
                 a1 += j01 * fx + j11 * fy + j21 * fz
                 a2 += j02 * fx + j12 * fy + j22 * fz
-            if effects:
-                e, slope = self._effects_now(t, (q0, q1, q2), (v0, v1, v2), tau_applied)
-                a0 -= e[0]
-                a1 -= e[1]
-                a2 -= e[2]
-                d00 += slope[0]
-                d11 += slope[1]
-                d22 += slope[2]
+            e, slope = self._effects_now(t, (q0, q1, q2), (v0, v1, v2), tau_applied)
+            a0 -= e[0]
+            a1 -= e[1]
+            a2 -= e[2]
+            d00 += slope[0]
+            d11 += slope[1]
+            d22 += slope[2]
             # Solve (M + h D) qdd = a by Cramer's rule.
             c00, c01, c02 = m00 + h * d00, m01, m02
             c10, c11, c12 = m10, m11 + h * d11, m12 + h * d12
@@ -424,9 +601,11 @@ class SimulatedOmni(Device):
             q2 += h * v2
             t += h
         if not all(math.isfinite(x) for x in (q0, q1, q2, v0, v1, v2)):
-            raise ModelError(f"simulation diverged at t = {self._t_s:.4f} s")
-        self._q = np.array([q0, q1, q2])
-        self._qd = np.array([v0, v1, v2])
+            raise ModelError(f"simulation diverged at t = {self.t_s:.4f} s")
+        self._q[:] = (q0, q1, q2)
+        self._qd[:] = (v0, v1, v2)
+        self._ws[kernels.TIME] += self.config.control_period_s
+        kernels.to_model_coordinates(self._ws, self._constants)
 
     def _effects_now(
         self,

@@ -30,9 +30,64 @@ from typing import Any
 
 import numpy as np
 
+from teleop_force.compiled import njit_cached
 from teleop_force.errors import ConfigurationError, DataError
 
 _Triple = tuple[float, float, float]
+
+
+@njit_cached()
+def true_friction_floats(
+    parameters: np.ndarray, qd1: float, qd2: float, qd3: float
+) -> tuple[float, float, float, float, float, float, float, float]:  # pragma: no cover
+    """Return the friction torques and their non-zero velocity derivatives at one velocity.
+
+    ``parameters`` is :attr:`TrueFriction.kernel_parameters`: ``1/v_t``, ``Fc_1..3, Fcc``,
+    ``Fs - Fc`` (joints 1-3, cable), ``1/vs`` (joints 1-3, cable), ``b_1..3, bc``, ``w0^2``,
+    ``gamma``. Returns ``(tau1, tau2, tau3, d11, d22, d23, d32, d33)`` with
+    ``d_ij = d tau_i / d qd_j``; the one definition the plant's kernels and
+    :meth:`TrueFriction.evaluate_floats` use.
+    """
+    ivt = parameters[0]
+    fc1, fc2, fc3, fcc = parameters[1], parameters[2], parameters[3], parameters[4]
+    h1, h2, h3, hc = parameters[5], parameters[6], parameters[7], parameters[8]
+    iv1, iv2, iv3, ivc = parameters[9], parameters[10], parameters[11], parameters[12]
+    b1, b2, b3, bc = parameters[13], parameters[14], parameters[15], parameters[16]
+    w0_sq, gain = parameters[17], parameters[18]
+    x = qd1 * iv1
+    hump = h1 * math.exp(-x * x)
+    s = math.tanh(qd1 * ivt)
+    c1 = (fc1 + hump) * s
+    dc1 = (fc1 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv1 * hump * s
+    x = qd2 * iv2
+    hump = h2 * math.exp(-x * x)
+    s = math.tanh(qd2 * ivt)
+    c2 = (fc2 + hump) * s
+    dc2 = (fc2 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv2 * hump * s
+    x = qd3 * iv3
+    hump = h3 * math.exp(-x * x)
+    s = math.tanh(qd3 * ivt)
+    c3 = (fc3 + hump) * s
+    dc3 = (fc3 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv3 * hump * s
+    w = qd2 - qd3
+    x = w * ivc
+    hump = hc * math.exp(-x * x)
+    s = math.tanh(w * ivt)
+    g = (fcc + hump) * s + bc * w
+    dg = (fcc + hump) * (1.0 - s * s) * ivt - 2.0 * x * ivc * hump * s + bc
+    denominator = w * w + w0_sq
+    kappa = 1.0 + gain * w * w / denominator
+    dkappa = gain * 2.0 * w * w0_sq / (denominator * denominator)
+    return (
+        c1 + b1 * qd1,
+        kappa * c2 + b2 * qd2 + g,
+        kappa * c3 + b3 * qd3 - g,
+        dc1 + b1,
+        kappa * dc2 + b2 + dkappa * c2 + dg,
+        -dkappa * c2 - dg,
+        dkappa * c3 - dg,
+        kappa * dc3 + b3 - dkappa * c3 + dg,
+    )
 
 
 def _check_triple(name: str, value: Any, *, positive: bool) -> _Triple:
@@ -81,7 +136,7 @@ class TrueFriction:
     interaction_gain: float = 0.15
     interaction_velocity_rad_s: float = 0.5
     smoothing_velocity_rad_s: float = 0.005
-    _fast: tuple[Any, ...] = field(init=False, repr=False, compare=False)
+    _kernel_parameters: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("coulomb_nm", "static_nm", "viscous_nms_per_rad"):
@@ -104,20 +159,30 @@ class TrueFriction:
         fc = (*self.coulomb_nm, self.cable_coulomb_nm)
         fs = (*self.static_nm, self.cable_static_nm)
         widths = (*self.stribeck_velocity_rad_s, self.cable_stribeck_velocity_rad_s)
-        fast = (
-            1.0 / self.smoothing_velocity_rad_s,
-            fc,
-            tuple(s - c for s, c in zip(fs, fc, strict=True)),
-            tuple(1.0 / v for v in widths),
-            (*self.viscous_nms_per_rad, self.cable_viscous_nms_per_rad),
-            self.interaction_velocity_rad_s**2,
+        packed = np.array(
+            [
+                1.0 / self.smoothing_velocity_rad_s,
+                *fc,
+                *(s - c for s, c in zip(fs, fc, strict=True)),
+                *(1.0 / v for v in widths),
+                *self.viscous_nms_per_rad,
+                self.cable_viscous_nms_per_rad,
+                self.interaction_velocity_rad_s**2,
+                self.interaction_gain,
+            ]
         )
-        object.__setattr__(self, "_fast", fast)
+        packed.flags.writeable = False
+        object.__setattr__(self, "_kernel_parameters", packed)
 
     @property
     def n_joints(self) -> int:
         """Always 3: the formula is the Omni's."""
         return 3
+
+    @property
+    def kernel_parameters(self) -> np.ndarray:
+        """The parameters packed for :func:`true_friction_floats` (read-only, 19 values)."""
+        return self._kernel_parameters
 
     def scaled(self, factor: float) -> TrueFriction:
         """Return a copy with every torque coefficient multiplied by ``factor`` (>= 0)."""
@@ -171,51 +236,15 @@ class TrueFriction:
     def evaluate_floats(
         self, qd1: float, qd2: float, qd3: float
     ) -> tuple[float, float, float, float, float, float, float, float]:
-        """Fast scalar path for the simulator's inner loop (same numbers as :meth:`torque`).
+        """Scalar path, compiled (:func:`true_friction_floats`; same numbers as :meth:`torque`).
 
         Returns ``(tau1, tau2, tau3, d11, d22, d23, d32, d33)``: the torques and the non-zero
         entries ``d_ij = d tau_i / d qd_j`` of the Jacobian.
         """
-        # Hand-inlined copy of _evaluate (a nested call per term costs more than the maths);
-        # tests check both give the same numbers.
-        tanh, exp = math.tanh, math.exp
-        ivt, (fc1, fc2, fc3, fcc), (h1, h2, h3, hc), (iv1, iv2, iv3, ivc), b, w0_sq = self._fast
-        b1, b2, b3, bc = b
-        x = qd1 * iv1
-        hump = h1 * exp(-x * x)
-        s = tanh(qd1 * ivt)
-        c1 = (fc1 + hump) * s
-        dc1 = (fc1 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv1 * hump * s
-        x = qd2 * iv2
-        hump = h2 * exp(-x * x)
-        s = tanh(qd2 * ivt)
-        c2 = (fc2 + hump) * s
-        dc2 = (fc2 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv2 * hump * s
-        x = qd3 * iv3
-        hump = h3 * exp(-x * x)
-        s = tanh(qd3 * ivt)
-        c3 = (fc3 + hump) * s
-        dc3 = (fc3 + hump) * (1.0 - s * s) * ivt - 2.0 * x * iv3 * hump * s
-        w = qd2 - qd3
-        x = w * ivc
-        hump = hc * exp(-x * x)
-        s = tanh(w * ivt)
-        g = (fcc + hump) * s + bc * w
-        dg = (fcc + hump) * (1.0 - s * s) * ivt - 2.0 * x * ivc * hump * s + bc
-        denominator = w * w + w0_sq
-        gain = self.interaction_gain
-        kappa = 1.0 + gain * w * w / denominator
-        dkappa = gain * 2.0 * w * w0_sq / (denominator * denominator)
-        return (
-            c1 + b1 * qd1,
-            kappa * c2 + b2 * qd2 + g,
-            kappa * c3 + b3 * qd3 - g,
-            dc1 + b1,
-            kappa * dc2 + b2 + dkappa * c2 + dg,
-            -dkappa * c2 - dg,
-            dkappa * c3 - dg,
-            kappa * dc3 + b3 - dkappa * c3 + dg,
+        result: tuple[float, float, float, float, float, float, float, float] = (
+            true_friction_floats(self._kernel_parameters, float(qd1), float(qd2), float(qd3))
         )
+        return result
 
     @staticmethod
     def _check_velocities(qd_rad_s: np.ndarray) -> np.ndarray:
