@@ -342,16 +342,21 @@ def _robot_seeds() -> list[bytes]:
 
 @cache
 def model_seed_dicts() -> tuple[dict, ...]:
-    """The shipped model (coupled CV) and a wavelet-network model with its fallback."""
+    """The shipped model with its coupled-CV fallback as the friction, a wavelet-network model
+    (untrained, with that fallback) and the coupled-CV model as ``robot none``."""
+    import dataclasses
+
     from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
 
-    model = DynamicModel.load(DEFAULT_MODEL_PATH)
+    shipped = DynamicModel.load(DEFAULT_MODEL_PATH)
+    assert isinstance(shipped.friction, WaveletNetwork) and shipped.friction.fallback is not None
+    model = dataclasses.replace(shipped, friction=shipped.friction.fallback)
     network = WaveletNetwork(3, omni_wavelet_specs(), fallback=model.friction)
     wn = DynamicModel(
         model.robot, model.n_joints, model.filter_config, model.base, model.base_values,
         model.base_std, network, model.offsets_nm,
     )  # fmt: skip
-    cv_none = json.loads(DEFAULT_MODEL_PATH.read_text())
+    cv_none = json.loads(json.dumps(model.to_dict()))
     cv_none.update(robot="none", base=None, base_names=[], base_values=[], base_std=[])
     return (model.to_dict(), wn.to_dict(), cv_none)
 

@@ -180,7 +180,7 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
         while len(got) < 300 and time.monotonic() < deadline:
             time.sleep(0.01)
         # An estimate that cannot be computed is counted, and the stream restarts cleanly.
-        original = service.estimator.update
+        original = service.estimator.step
         calls = {"n": 0}
 
         def failing_once(*args):
@@ -189,7 +189,7 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
                 raise DataError("simulated non-finite result")
             return original(*args)
 
-        service.estimator.update = failing_once
+        service.estimator.step = failing_once
         for k in range(300, 400):
             q = (0.1, 0.7 + 1e-4 * k, 0.3)
             pub.put(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())
