@@ -45,7 +45,8 @@ ContactForce (type 3), key ``omni/<device>/measured_cf``; size 40
 | 0      | header     | magic, version, type, seq, t_ns                          |
 | 16     | float64[3] | f_n = (f_x, f_y, f_z), tip force on the environment, base frame [N] |
 
-ForceEstimateMessage (type 4, MCAP schema ``teleop_force.ForceEstimate``), key
+ForceEstimateMessage (type 4, MCAP schema ``teleop_force/msg/ForceEstimate``; JSON recordings:
+``teleop_force.ForceEstimate``), key
 ``omni/<device>/estimated_cf``; size 45 + 32 n + ceil(n/8)
 
 | offset  | type             | field                                                   |
