@@ -47,6 +47,7 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.wire_pack import pack_joint_setpoint, pack_joint_state, unpack_force_estimate
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -58,7 +59,6 @@ from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
-from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_data_publisher,
     declare_json_queryable,
@@ -133,15 +133,15 @@ class FeedbackInbox:
         """Zenoh callback: keep the newest estimate."""
         arrival_ns = time.time_ns()
         try:
-            estimate = m.ForceEstimateMessage.decode(sample.payload.to_bytes())
+            seq, t_ns, _source_seq, f_n = unpack_force_estimate(sample.payload.to_bytes())
         except MessageError:
             with self._lock:
                 self.malformed += 1
             return
-        force = np.array(estimate.f_n)
+        force = np.array(f_n)
         with self._lock:
-            self.seqs.observe(estimate.seq)
-            self.latency.add((arrival_ns - estimate.t_ns) * 1e-9)
+            self.seqs.observe(seq)
+            self.latency.add((arrival_ns - t_ns) * 1e-9)
             self.force_n = force
             self.arrival_s = time.perf_counter()
 
@@ -227,7 +227,9 @@ class MasterProcess:
             if config.haptic_feedback:
                 entities.append(
                     declare_subscriber(
-                        session, keys.estimated_cf(config.slave), self.feedback.on_sample
+                        session,
+                        keys.estimated_cf(config.slave),
+                        zenoh.handlers.Callback(self.feedback.on_sample, indirect=False),
                     )
                 )
             entities.append(
@@ -272,6 +274,7 @@ class MasterProcess:
     def _control_loop(self, sp_pub: zenoh.Publisher, js_pub: zenoh.Publisher) -> None:
         config = self.config
         plant, hand, loop, operator = self.plant, self.hand, self.loop, self.operator
+        put_time, stop, feedback = self.put_time, self.stop, self.feedback
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -279,36 +282,35 @@ class MasterProcess:
         )
         feedback_on = config.haptic_feedback
         scale = config.feedback_scale
-        zero = np.zeros(3)
+        no_torque = (0.0, 0.0, 0.0)
+        perf_counter, time_ns = time.perf_counter, time.time_ns
         loop.start()
-        while not self.stop.is_set():
+        while not stop.is_set():
             k = loop.wait()
             if n_ticks is not None and k >= n_ticks:
                 break
             seq = k & SEQ_MASK
             q = plant.read().q_rad
-            stamp_ns = time.time_ns()  # when the pose was read, as a real driver would stamp it
-            q_floats = tuple(q.tolist())
-            setpoint = m.JointSetpoint(seq, stamp_ns, q_floats).encode()
-            put_started_s = time.perf_counter()
+            stamp_ns = time_ns()  # when the pose was read, as a real driver would stamp it
+            q_floats = q.tolist()
+            setpoint = pack_joint_setpoint(seq, stamp_ns, q_floats)
+            put_started_s = perf_counter()
             put(sp_pub, setpoint)
-            self.put_time.add(time.perf_counter() - put_started_s)
+            put_time.add(perf_counter() - put_started_s)
             q_hand, qd_hand = operator.reference(k)
             tau_hand = hand.update(q_hand, q, qd_hand)
-            tau_motor = zero
+            motor: Sequence[float] = no_torque
             if feedback_on:
-                force, arrival_s = self.feedback.latest()
-                if arrival_s is not None and time.perf_counter() - arrival_s <= FEEDBACK_STALE_S:
+                force, arrival_s = feedback.latest()
+                if arrival_s is not None and perf_counter() - arrival_s <= FEEDBACK_STALE_S:
                     tau_motor = feedback_torque_nm(q, force, scale, omni.MOTOR_TORQUE_LIMIT_NM)
-            plant.command_torque(tau_hand + tau_motor)
-            state_message = m.JointState(
-                seq,
-                stamp_ns,
-                q_floats,
-                tuple(hand.velocity_rad_s.tolist()),
-                tuple(tau_motor.tolist()),
+                    tau_hand = tau_hand + tau_motor
+                    motor = tau_motor.tolist()
+            plant.command_torque(tau_hand)
+            put(
+                js_pub,
+                pack_joint_state(seq, stamp_ns, q_floats, hand.velocity_rad_s.tolist(), motor),
             )
-            put(js_pub, state_message.encode())
             self.published += 1
             plant.step()
 

@@ -18,7 +18,8 @@ class RunConfig:
     Attributes:
         duration_s: Stop after this long (``None``: until SIGINT / SIGTERM).
         wait_subscribers_s: Before streaming, wait up to this long for the main publisher
-            to have a matching subscriber (0: do not wait).
+            to have a matching subscriber and for the peer process (the slave waits for the
+            master's liveliness token, the master for the slave's) (0: do not wait).
         stats_json: Where to write the final statistics (``None``: nowhere, ``-``: stdout).
 
     """
@@ -55,15 +56,17 @@ def add_process_arguments(
     parser.add_argument(
         "--spin-us",
         type=float,
-        default=50.0,
-        help="busy-wait this long before each deadline instead of sleeping (default 50)",
+        default=0.0,
+        help="busy-wait this long before each deadline instead of sleeping "
+        "(default 0: sleep to the deadline, no core spinning)",
     )
     parser.add_argument(
         "--wait-subscribers",
         type=float,
         default=wait_subscribers_s,
         metavar="S",
-        help="wait up to S seconds for a matching subscriber before streaming "
+        help="wait up to S seconds for a matching subscriber and the peer process (master "
+        "or slave) before streaming "
         f"(default {wait_subscribers_s:g}; 0: start at once)",
     )
     parser.add_argument(
@@ -76,8 +79,8 @@ def add_process_arguments(
 
 
 def loop_config_from_args(args: argparse.Namespace) -> LoopConfig:
-    """Return the :class:`LoopConfig` of the parsed flags."""
-    return LoopConfig(rate_hz=args.rate_hz, spin_s=args.spin_us * 1e-6)
+    """Return the :class:`LoopConfig` of the parsed flags (a process's loop: heap frozen)."""
+    return LoopConfig(rate_hz=args.rate_hz, spin_s=args.spin_us * 1e-6, freeze_gc=True)
 
 
 def run_config_from_args(args: argparse.Namespace) -> RunConfig:

@@ -66,6 +66,7 @@ class SafetyMonitor:
         self.reason = "waiting for the master"
         self.holds = 0
         self._count_at_hold = 0
+        self._unchanged = SafetyDecision(self.state, self.reason, False)
 
     def update(
         self,
@@ -97,14 +98,14 @@ class SafetyMonitor:
                     f"> {self.config.stale_s * 1e3:g} ms",
                     setpoints_received,
                 )
-            return SafetyDecision(self.state, self.reason, False)
+            return self._unchanged
         if self.state in (SafetyState.STARTING, SafetyState.HOLDING):
             new = setpoints_received - self._count_at_hold
             if master_alive and fresh and new >= self.config.resume_count:
                 return self._enter(
                     SafetyState.FOLLOWING, "following the master", setpoints_received
                 )
-        return SafetyDecision(self.state, self.reason, False)
+        return self._unchanged
 
     def stop(self, reason: str) -> SafetyDecision:
         """Enter STOPPED (the process is shutting down)."""
@@ -116,4 +117,5 @@ class SafetyMonitor:
         self.state = state
         self.reason = reason
         self._count_at_hold = count
+        self._unchanged = SafetyDecision(state, reason, False)  # what the next ticks return
         return SafetyDecision(state, reason, True)

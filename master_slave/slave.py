@@ -54,6 +54,11 @@ from master_slave.process_args import (
 )
 from master_slave.realtime import LoopConfig, RateLoop
 from master_slave.safety import SafetyConfig, SafetyMonitor
+from master_slave.wire_pack import (
+    pack_contact_force,
+    pack_joint_state,
+    unpack_joint_setpoint,
+)
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -126,15 +131,26 @@ class SlaveConfig:
             raise ConfigurationError(f"seed must be >= 0, got {self.seed}")
 
 
-class SetpointInbox:
-    """The latest valid setpoint from the master, written by the Zenoh callback thread."""
+def slew_toward(current: Sequence[float], target: Sequence[float], max_step: float) -> list[float]:
+    """Move each joint of ``current`` toward ``target`` by at most ``max_step`` [rad]."""
+    moved = []
+    for c, t in zip(current, target, strict=True):
+        d = t - c
+        moved.append(c + (max_step if d > max_step else (-max_step if d < -max_step else d)))
+    return moved
 
-    def __init__(self, n_joints: int = 3) -> None:
+
+class SetpointInbox:
+    """The latest valid setpoint from the master, written by the Zenoh callback thread.
+
+    The control loop reads :meth:`latest` every tick without a lock: the callback replaces
+    one tuple ``(q, arrival, count)`` in a single (atomic) assignment.
+    """
+
+    def __init__(self) -> None:
         """Start empty."""
         self._lock = threading.Lock()
-        self._n = n_joints
-        self.q_rad: np.ndarray | None = None
-        self.arrival_s: float | None = None
+        self._latest: tuple[tuple[float, ...] | None, float | None, int] = (None, None, 0)
         self.count = 0
         self.malformed = 0
         self.last_malformed = ""
@@ -146,26 +162,21 @@ class SetpointInbox:
         arrival_ns = time.time_ns()
         arrival_s = time.perf_counter()
         try:
-            setpoint = m.JointSetpoint.decode(sample.payload.to_bytes())
-            if setpoint.n_joints != self._n:
-                raise MessageError(f"{setpoint.n_joints} joints, the slave has {self._n}")
+            seq, t_ns, q = unpack_joint_setpoint(sample.payload.to_bytes())
         except MessageError as exc:
             with self._lock:
                 self.malformed += 1
                 self.last_malformed = str(exc)
             return
-        q = np.array(setpoint.q_rad)
         with self._lock:
-            self.seqs.observe(setpoint.seq)
-            self.latency.add((arrival_ns - setpoint.t_ns) * 1e-9)
-            self.q_rad = q
-            self.arrival_s = arrival_s
+            self.seqs.observe(seq)
+            self.latency.add((arrival_ns - t_ns) * 1e-9)
             self.count += 1
+            self._latest = (q, arrival_s, self.count)
 
-    def latest(self) -> tuple[np.ndarray | None, float | None, int]:
-        """``(q, arrival time [perf_counter s], number received)``."""
-        with self._lock:
-            return self.q_rad, self.arrival_s, self.count
+    def latest(self) -> tuple[tuple[float, ...] | None, float | None, int]:
+        """``(q [rad], arrival time [perf_counter s], number received)``."""
+        return self._latest
 
     def stats(self) -> dict[str, Any]:
         """Counters and the setpoint latency (master stamp -> arrival here) [ms]."""
@@ -267,7 +278,12 @@ class SlaveProcess:
             self._status_pub = declare_data_publisher(session, keys.status(config.device))
             entities += [js_pub, cf_pub, self._status_pub]
             entities.append(
-                declare_subscriber(session, keys.setpoint_js(config.master), self.inbox.on_sample)
+                declare_subscriber(
+                    session,
+                    keys.setpoint_js(config.master),
+                    # run on Zenoh's receive thread: no hand-over to a Python thread per sample
+                    zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
+                )
             )
             entities.append(
                 declare_liveliness_subscriber(
@@ -279,11 +295,18 @@ class SlaveProcess:
             )
             entities.append(declare_token(session, keys.alive(config.device, ROLE)))
             if config.run.wait_subscribers_s > 0.0:
+                # The master too (its token): a peer joining while the loop runs holds up
+                # the loop's puts for tens of milliseconds (Zenoh updates its routes).
                 matched = wait_for_subscribers(
-                    js_pub, config.run.wait_subscribers_s, stop=self.stop.is_set
+                    js_pub,
+                    config.run.wait_subscribers_s,
+                    stop=self.stop.is_set,
+                    ready=lambda: self.presence.alive,
                 )
                 if not matched and not self.stop.is_set():
-                    log(ROLE, "no subscriber for the joint states yet; starting anyway")
+                    log(
+                        ROLE, "no subscriber for the joint states or no master yet; starting anyway"
+                    )
             self._publish_status(time.perf_counter(), force=True)
             log(
                 ROLE,
@@ -301,6 +324,7 @@ class SlaveProcess:
     def _control_loop(self, js_pub: zenoh.Publisher, cf_pub: zenoh.Publisher) -> None:
         config = self.config
         plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
+        presence, put_time, stop = self.presence, self.put_time, self.stop
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -308,11 +332,14 @@ class SlaveProcess:
         )
         max_step = config.max_speed_rad_s * config.loop.period_s
         damping = np.array(config.hold_damping_nms_per_rad)
-        hold_q = plant.measured_q_rad()
-        q_ref = hold_q.copy()
+        no_force = (0.0, 0.0, 0.0)
+        # The followed (slew-limited) reference as plain floats: three joints are cheaper
+        # in Python than in numpy.
+        q_ref = plant.measured_q_rad().tolist()
         following = m.SafetyState.FOLLOWING
+        perf_counter = time.perf_counter
         loop.start()
-        while not self.stop.is_set():
+        while not stop.is_set():
             k = loop.wait()
             if n_ticks is not None and k >= n_ticks:
                 break
@@ -320,34 +347,32 @@ class SlaveProcess:
             state = plant.read()
             q = state.q_rad
             q_sp, arrival_s, count = inbox.latest()
-            now_s = time.perf_counter()
-            decision = safety.update(now_s, self.presence.alive, arrival_s, count)
+            now_s = perf_counter()
+            decision = safety.update(now_s, presence.alive, arrival_s, count)
+            is_following = decision.state == following
             if decision.changed:
-                if decision.state != following:
-                    hold_q = q.copy()
-                    q_ref = hold_q.copy()
+                if not is_following:
+                    q_ref = q.tolist()  # hold where the arm is
                     self._record_hold(now_s, arrival_s, decision.reason)
                 self._publish_status(now_s, force=True)
-            if decision.state == following and q_sp is not None:
-                q_ref = q_ref + np.clip(q_sp - q_ref, -max_step, max_step)
-            tau = pid.update(q_ref, q)
-            if decision.state != following:
+            if is_following and q_sp is not None:
+                q_ref = slew_toward(q_ref, q_sp, max_step)
+            tau = pid.update(np.array(q_ref), q)
+            if not is_following:
                 tau = tau - damping * pid.velocity_rad_s
             command = plant.command_torque(tau)
             seq = k & SEQ_MASK
-            state_message = m.JointState(
-                seq,
-                stamp_ns,
-                tuple(q.tolist()),
-                tuple(pid.velocity_rad_s.tolist()),
-                tuple(command.tau_nm.tolist()),
+            joint_state = pack_joint_state(
+                seq, stamp_ns, q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
             )
-            put_started_s = time.perf_counter()
-            put(js_pub, state_message.encode())
-            self.put_time.add(time.perf_counter() - put_started_s)
+            put_started_s = perf_counter()
+            put(js_pub, joint_state)
+            put_time.add(perf_counter() - put_started_s)
             force = state.f_tip_in_base_n
-            force_floats = (0.0, 0.0, 0.0) if force is None else tuple(force.tolist())
-            put(cf_pub, m.ContactForce(seq, stamp_ns, force_floats).encode())
+            put(
+                cf_pub,
+                pack_contact_force(seq, stamp_ns, no_force if force is None else force.tolist()),
+            )
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)

@@ -5,9 +5,8 @@ multicast scouting off); every child is a peer that ``--connect``\\ s to it, and
 lets the peers connect to one another. The children start together (their imports overlap);
 each one's liveliness token tells the supervisor it is up:
 
-1. the force-estimation service (``python -m teleop_force.service.force_service``), recording the
-session
-   to ``recordings/demo-<timestamp>.mcap``;
+1. the force-estimation service (``python -m teleop_force.service.force_service``), recording
+   the session to ``recordings/demo-<timestamp>.mcap``;
 2. the slave (``python -m master_slave.slave``), which starts streaming once the service
    subscribes to its joint states;
 3. the master (``python -m master_slave.master``), which starts once the slave subscribes to
@@ -18,8 +17,55 @@ session
 Every second it prints the service's figures (estimated vs true force, rates, lost messages,
 latencies). After ``--duration`` (counted from when the master runs) or on Ctrl-C / SIGTERM it
 collects the final statistics, stops the children (master first) and prints the summary:
-messages lost, master -> slave latency, slave -> estimate latency, and the force-estimate RMS
-error during contact as a fraction of the RMS true force (``--summary-json`` writes it too).
+messages lost, master -> slave latency, slave -> estimate latency, the force-estimate RMS
+error during contact as a fraction of the RMS true force, the master's and slave's loop
+figures, the slave's holds and the CPU used (``--summary-json`` writes it too).
+
+Real time on a shared machine
+-----------------------------
+A 1 kHz loop on a loaded 2-core machine waits for a CPU for tens of milliseconds at a time
+under ordinary scheduling, whatever its own cost (measured: 10-20 % of the ticks late by more
+than a period at load 4-6, even at nice -10). So the service, the slave and the master run in
+the ``SCHED_FIFO`` real-time class (``rt_priority``, default 10 for the service and 11 for
+the loops, which preempt the service's estimation), *every thread* of them: a loop thread
+alone in that class would wait on Zenoh threads that are not. This needs root,
+``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO``; without, they run at ``realtime_nice`` (-10, also
+privileged) or as they are: ``scheduling`` in the summary says what they got. The kernel
+keeps 5 % of every CPU for ordinary work whatever the real-time tasks do
+(``sched_rt_runtime_us``). The supervisor itself runs at ``realtime_nice``: starved, it would
+stop reading its sockets and the publishers it subscribes to (congestion control BLOCK) would
+wait for it.
+
+The supervisor's own statistics are cheap: its subscribers queue samples in Zenoh ring
+channels (no Python on Zenoh's receive threads) drained by one thread every 50 ms, which
+unpacks only the fixed head of each estimate and true force (:class:`_Monitor`).
+
+Summary JSON
+------------
+``ok``, ``failure``; ``duration_s`` (from when the master runs); ``recording``, ``log``,
+``zenoh_endpoint``, ``pids`` {name: pid}; ``scheduling`` {name: {``policy`` (``fifo`` /
+``other``), ``priority``, ``nice``}};
+
+- ``messages_lost`` {``setpoints_at_slave``, ``joint_states_at_service``,
+  ``joint_states_dropped_by_service``, ``estimates_at_supervisor``,
+  ``true_forces_at_supervisor``, ``total``};
+- ``master_to_slave_latency_ms``, ``slave_to_estimate_latency_ms`` {``p50``, ``p99``,
+  ``max``, ``count``};
+- ``force_error`` (:meth:`~teleop_force.service.accuracy.ForceAccuracy.summary`);
+- ``loops`` {``master``, ``slave``: {``ticks``, ``expected_ticks`` (the loop's elapsed time
+  x its rate), ``ticks_fraction`` (ticks / expected), ``overruns`` (ticks started more than a
+  period late), ``overrun_fraction`` (overruns / ticks), ``missed_ticks`` (deadlines a resync
+  jumped over), ``resyncs``, ``rate_hz``, ``gc_full_collections``, ``lateness_ms`` {``p50``,
+  ``p99``, ``max``, ``count``}}} (:meth:`master_slave.realtime.RateLoop.stats`);
+- ``loop_overruns`` {``master``, ``slave``} (counts) and ``loop_overrun_fraction`` {``master``,
+  ``slave``};
+- ``slave_holds``; ``malformed_dropped`` {``service``, ``slave``, ``supervisor``};
+  ``rates_hz`` {``joint_states_at_service``, ``slave_loop``, ``master_loop``};
+- ``cpu_percent`` {``service``, ``slave``, ``master``, ``supervisor``, ``dashboard`` if it
+  ran, ``total``}: CPU time over the running phase in % of one core
+  (``cpu_percent_of_one_core``: the same dict, its older name);
+- ``machine_load_average`` (at the end) and ``machine_load_average_at_start`` [1, 5, 15 min];
+- ``stats``: the final statistics of the service, the slave and the master.
 
 Children run in their own process groups (a terminal's Ctrl-C reaches only the supervisor,
 which stops them in order); each group gets SIGTERM, then SIGKILL after a timeout. If the
@@ -30,12 +76,14 @@ supervisor itself dies, the children stop by themselves: on Linux they get SIGTE
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import gc
 import importlib.util
 import math
 import os
-import queue
 import signal
+import struct
 import subprocess
 import sys
 import threading
@@ -55,9 +103,9 @@ from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_liveliness_subscriber,
-    declare_subscriber,
     query_json,
     undeclare_all,
+    zenoh_error_text,
 )
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -68,6 +116,10 @@ from teleop_force.transport.session import (
 from teleop_force.transport.stream_stats import SequenceTracker
 
 DEFAULT_DASHBOARD_PORT: Final = 8080
+#: SCHED_FIFO priority of the real-time children (service, slave, master) by default.
+DEFAULT_RT_PRIORITY: Final = 10
+#: Their nice value when the real-time class is off or not allowed.
+DEFAULT_REALTIME_NICE: Final = -10
 _PR_SET_PDEATHSIG: Final = 1
 _STOP_TIMEOUT_S: Final = 5.0
 
@@ -92,6 +144,14 @@ class DemoConfig:
         startup_timeout_s: Longest wait for a child to come up.
         report_period_s: Period of the figures printed while running (0: none).
         accuracy: Contact threshold of the accuracy figure.
+        rt_priority: ``SCHED_FIFO`` priority of the service, the slave and the master, all
+            their threads (0: ordinary scheduling). A 1 kHz loop on a loaded 2-core machine
+            otherwise waits for a CPU for tens of milliseconds at a time (module docstring).
+            Needs root, ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO``; without, the children run
+            at ``realtime_nice``.
+        realtime_nice: Nice value of the service, the slave and the master (``None``: the
+            supervisor's); it matters when they do not run in the real-time class. A
+            negative value needs the same privilege.
 
     """
 
@@ -110,9 +170,15 @@ class DemoConfig:
     startup_timeout_s: float = 90.0
     report_period_s: float = 1.0
     accuracy: AccuracyConfig = field(default_factory=AccuracyConfig)
+    rt_priority: int = DEFAULT_RT_PRIORITY
+    realtime_nice: int | None = DEFAULT_REALTIME_NICE
 
     def __post_init__(self) -> None:
         """Check the ranges and ids."""
+        if self.realtime_nice is not None and not -20 <= self.realtime_nice <= 19:
+            raise ConfigurationError(f"--nice must be in -20..19, got {self.realtime_nice}")
+        if not 0 <= self.rt_priority <= 99:
+            raise ConfigurationError(f"--rt-priority must be in 0..99, got {self.rt_priority}")
         if self.duration_s is not None and not (
             math.isfinite(self.duration_s) and self.duration_s > 0.0
         ):
@@ -141,14 +207,48 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
         return
 
 
+@dataclass(frozen=True)
+class _ChildSetup:
+    """What a child runs after the fork, before ``exec``: die with the parent, scheduling.
+
+    The nice value and the ``SCHED_FIFO`` class are set before the child has any thread, so
+    every thread it starts (Zenoh's included) inherits them: a loop thread alone in the
+    real-time class would wait on Zenoh threads that are not. What the process lacks the
+    privilege for is left as it was; :meth:`Child.scheduling` reads what it got.
+    """
+
+    nice: int | None = None
+    rt_priority: int = 0
+
+    def __call__(self) -> None:  # pragma: no cover - runs in the forked child
+        if sys.platform.startswith("linux"):
+            _die_with_parent()
+        if self.nice is not None:
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, 0, self.nice)
+        if self.rt_priority > 0 and hasattr(os, "sched_setscheduler"):
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+
+
 class Child:
     """One supervised child process in its own process group."""
 
-    def __init__(self, name: str, argv: list[str], log: IO[bytes]) -> None:
-        """Start ``argv``; its stdout and stderr go to ``log``."""
+    def __init__(
+        self,
+        name: str,
+        argv: list[str],
+        log: IO[bytes],
+        *,
+        nice: int | None = None,
+        rt_priority: int = 0,
+    ) -> None:
+        """Start ``argv`` (at ``nice``, in SCHED_FIFO at ``rt_priority`` > 0, where allowed).
+
+        Its output goes to ``log``.
+        """
         self.name = name
         self.argv = argv
-        preexec = _die_with_parent if sys.platform.startswith("linux") else None
         environment = {**os.environ, SUPERVISOR_PID_ENV: str(os.getpid())}
         try:
             self.process = subprocess.Popen(
@@ -158,11 +258,24 @@ class Child:
                 stdout=log,
                 stderr=log,
                 start_new_session=True,
-                preexec_fn=preexec,
+                preexec_fn=_ChildSetup(nice, rt_priority),
             )
         except OSError as exc:
             raise TransportError(f"cannot start {name}: {exc}") from None
         self._stopped = False
+
+    def scheduling(self) -> dict[str, Any] | None:
+        """``{"policy": "fifo" | "other" | ..., "priority", "nice"}`` (``None``: gone)."""
+        try:
+            nice = os.getpriority(os.PRIO_PROCESS, self.pid)
+            if not hasattr(os, "sched_getscheduler"):
+                return {"policy": None, "priority": None, "nice": nice}
+            policy = os.sched_getscheduler(self.pid)
+            priority = os.sched_getparam(self.pid).sched_priority
+        except OSError:
+            return None
+        names = {os.SCHED_FIFO: "fifo", os.SCHED_RR: "rr", os.SCHED_OTHER: "other"}
+        return {"policy": names.get(policy, str(policy)), "priority": priority, "nice": nice}
 
     @property
     def pid(self) -> int:
@@ -237,12 +350,33 @@ class _Presence:
             return key in self.present
 
 
+#: seq, t_ns, source_seq, n and f_n of a ForceEstimate: all the supervisor reads of one.
+_ESTIMATE_HEAD: Final = struct.Struct("<2sBBIqIB3d")
+_CONTACT_FORCE: Final = struct.Struct("<2sBBIq3d")
+_ESTIMATE_TYPE: Final = int(m.MessageType.FORCE_ESTIMATE)
+_ESTIMATE_N_OFFSET: Final = m.HEADER_SIZE + 4  # the joint count, after the source seq
+_CONTACT_FORCE_TYPE: Final = int(m.MessageType.CONTACT_FORCE)
+#: Samples a monitor channel holds (about 30 s of a 2 kHz stall); beyond, the oldest go
+#: (and count as lost): the supervisor never blocks a publisher.
+_CHANNEL_CAPACITY: Final = 1 << 16
+#: How often the monitor drains its channels [s].
+_DRAIN_PERIOD_S: Final = 0.05
+
+
+def _estimate_size(n: int) -> int:
+    """Wire size of a ForceEstimate of ``n`` joints (``messages`` module docstring)."""
+    return _ESTIMATE_HEAD.size + 32 * n + (n + 7) // 8
+
+
 class _Monitor:
     """The supervisor's own subscriptions: estimates, true forces, slave status.
 
-    The Zenoh callbacks only queue the payloads; one worker thread decodes them, so a busy
-    supervisor never holds up a receive thread (and, through congestion control BLOCK, the
-    publishers: the service and the slave).
+    Cheap by construction: the subscribers queue samples in Zenoh's ring channels (no Python,
+    no GIL on Zenoh's receive threads), and one worker thread drains them every
+    ``_DRAIN_PERIOD_S``. Of an estimate or a true force it unpacks only the fixed head with
+    one precompiled struct (seq for the loss count; source seq and force for the accuracy
+    figure) and checks what it reads: header, size, force. The service decodes every joint
+    state in full; the recording keeps every message.
     """
 
     def __init__(self, accuracy: AccuracyConfig) -> None:
@@ -253,56 +387,125 @@ class _Monitor:
         self.state = "unknown"
         self.reason = ""
         self.holds_seen = 0
-        self._queue: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
+        self._subscribers: list[tuple[Any, Any]] = []
+        self._lock = threading.Lock()  # one drain at a time (worker, final drain)
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
+
+    def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
+        """Declare the ring-channel subscribers, start the worker; return the subscribers."""
+        for key, handle in (
+            (keys.estimated_cf(slave), self._on_estimate),
+            (keys.measured_cf(slave), self._on_true_force),
+            (keys.status(slave), self._on_status),
+        ):
+            try:
+                subscriber = session.declare_subscriber(
+                    key, zenoh.handlers.RingChannel(_CHANNEL_CAPACITY)
+                )
+            except zenoh.ZError as exc:
+                raise TransportError(
+                    f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}"
+                ) from None
+            self._subscribers.append((subscriber, handle))
         self._thread.start()
+        return [subscriber for subscriber, _ in self._subscribers]
 
-    def on_estimate(self, sample: zenoh.Sample) -> None:
-        self._queue.put(("estimate", sample.payload.to_bytes()))
-
-    def on_true_force(self, sample: zenoh.Sample) -> None:
-        self._queue.put(("true", sample.payload.to_bytes()))
-
-    def on_status(self, sample: zenoh.Sample) -> None:
-        self._queue.put(("status", sample.payload.to_bytes()))
-
-    def drain(self, timeout_s: float = 10.0) -> None:
-        """Wait until every queued payload is processed (or ``timeout_s``)."""
-        deadline = time.perf_counter() + timeout_s
-        while not self._queue.empty() and time.perf_counter() < deadline:
-            time.sleep(0.01)
+    def drain(self) -> None:
+        """Process every sample received so far."""
+        with self._lock:
+            for subscriber, handle in self._subscribers:
+                try:
+                    sample = subscriber.try_recv()
+                    while sample is not None:
+                        handle(sample.payload.to_bytes())
+                        sample = subscriber.try_recv()
+                except zenoh.ZError:  # undeclared meanwhile: nothing more to read
+                    continue
 
     def close(self) -> None:
-        """Stop the worker thread."""
-        self._queue.put(None)
-        self._thread.join(5.0)
+        """Stop the worker thread after a last drain (before the subscribers go)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(5.0)
+        self.drain()
 
     def _run(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            kind, payload = item
-            try:
-                self._process(kind, payload)
-            except MessageError:
-                self.malformed += 1
+        while not self._stop.wait(_DRAIN_PERIOD_S):
+            self.drain()
 
-    def _process(self, kind: str, payload: bytes) -> None:
-        if kind == "estimate":
-            estimate = m.ForceEstimateMessage.decode(payload)
-            self.estimates.observe(estimate.seq)
-            self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
-        elif kind == "true":
-            force = m.ContactForce.decode(payload)
-            self.true_forces.observe(force.seq)
-            self.accuracy.add_true(force.seq, force.f_n)
-        else:
+    def _on_estimate(self, payload: bytes) -> None:
+        size = len(payload)
+        if (
+            size >= _ESTIMATE_HEAD.size
+            and payload[_ESTIMATE_N_OFFSET] > 0
+            and size == _estimate_size(payload[_ESTIMATE_N_OFFSET])
+        ):
+            magic, version, kind, seq, _t, source_seq, _n, *force = _ESTIMATE_HEAD.unpack_from(
+                payload
+            )
+            if (
+                magic == m.MAGIC
+                and version == m.VERSION
+                and kind == _ESTIMATE_TYPE
+                and not any(map(math.isinf, force))
+            ):
+                self.estimates.observe(seq)
+                self.accuracy.add_estimate(source_seq, force)
+                return
+        self.malformed += 1
+
+    def _on_true_force(self, payload: bytes) -> None:
+        if len(payload) == _CONTACT_FORCE.size:
+            magic, version, kind, seq, _t, *force = _CONTACT_FORCE.unpack(payload)
+            if (
+                magic == m.MAGIC
+                and version == m.VERSION
+                and kind == _CONTACT_FORCE_TYPE
+                and math.isfinite(force[0] + force[1] + force[2])
+            ):
+                self.true_forces.observe(seq)
+                self.accuracy.add_true(seq, force)
+                return
+        self.malformed += 1
+
+    def _on_status(self, payload: bytes) -> None:
+        try:
             status = m.Status.decode(payload)
-            state = status.state.name.lower()
-            if state == "holding" and self.state != "holding":
-                self.holds_seen += 1
-            self.state, self.reason = state, status.reason
+        except MessageError:
+            self.malformed += 1
+            return
+        state = status.state.name.lower()
+        if state == "holding" and self.state != "holding":
+            self.holds_seen += 1
+        self.state, self.reason = state, status.reason
+
+
+_LOOP_KEYS: Final = (
+    "ticks", "expected_ticks", "ticks_fraction", "overruns", "overrun_fraction",
+    "missed_ticks", "resyncs", "rate_hz", "gc_full_collections",
+)  # fmt: skip
+
+
+def _loop_summary(stats: dict[str, Any] | None) -> dict[str, Any]:
+    """Pick the loop figures of a master's or slave's final statistics (``None``: unknown)."""
+    loop = (stats or {}).get("loop") or {}
+    summary = {key: loop.get(key) for key in _LOOP_KEYS}
+    summary["lateness_ms"] = loop.get("lateness_ms")
+    return summary
+
+
+def _fmt_loop(loop: dict[str, Any]) -> str:
+    if loop.get("ticks") is None:
+        return "n/a"
+    fraction, overrun = loop.get("ticks_fraction"), loop.get("overrun_fraction")
+    ticks = f"{loop['ticks']} ticks of {loop['expected_ticks']:.0f} expected"
+    if fraction is not None:
+        ticks += f" ({fraction:.2%})"
+    overruns = f"overruns {loop['overruns']}"
+    if overrun is not None:
+        overruns += f" ({overrun:.2%})"
+    return f"{ticks}, {overruns}, missed {loop['missed_ticks']}"
 
 
 def _python_module(module: str, *args: str) -> list[str]:
@@ -343,6 +546,8 @@ class DemoSupervisor:
         self.cpu_percent: dict[str, float | None] = {}
         self._cpu_at_run: dict[str, float | None] = {}
         self._own_cpu_at_run = 0.0
+        self._load_at_run: list[float] | None = None
+        self._scheduling: dict[str, dict[str, Any] | None] = {}
 
     def say(self, message: str) -> None:
         """Print one line for the user."""
@@ -363,6 +568,12 @@ class DemoSupervisor:
 
     def _run(self, log: IO[bytes]) -> dict[str, Any]:
         config = self.config
+        if config.realtime_nice is not None:
+            # Before Zenoh's threads exist, so they inherit it: a supervisor starved by the
+            # machine's other work stops reading its sockets, and the publishers it
+            # subscribes to (congestion control BLOCK) then wait for it.
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, 0, config.realtime_nice)
         port = config.zenoh_port or free_tcp_port()
         self.endpoint = listen_endpoint(port)
         self.session = open_session(
@@ -376,19 +587,7 @@ class DemoSupervisor:
                     self.session, keys.alive_any(), self.presence.on_sample
                 )
             )
-            entities.append(
-                declare_subscriber(
-                    self.session, keys.estimated_cf(config.slave), self.monitor.on_estimate
-                )
-            )
-            entities.append(
-                declare_subscriber(
-                    self.session, keys.measured_cf(config.slave), self.monitor.on_true_force
-                )
-            )
-            entities.append(
-                declare_subscriber(self.session, keys.status(config.slave), self.monitor.on_status)
-            )
+            entities += self.monitor.subscribe(self.session, config.slave)
             self.say(f"zenoh endpoint: {self.endpoint} (peer mode, no multicast)")
             self.say(f"recording: {self.recording}   logs: {self.log_path}")
             if self._start_all(log):
@@ -398,10 +597,9 @@ class DemoSupervisor:
             self._stop_children()
         finally:
             self._stop_children()
+            self.monitor.close()  # the last samples, before the subscribers go
             undeclare_all(*entities)
             self.session.close()
-            self.monitor.drain()
-            self.monitor.close()
         summary = self._summary(final)
         self._print_summary(summary)
         if config.summary_json is not None:
@@ -446,7 +644,10 @@ class DemoSupervisor:
         # master once the slave subscribes to its setpoints.
         started = []
         for name, module, args, token in steps:
-            child = Child(name, _python_module(module, *args, *self._connect_args()), log)
+            argv = _python_module(module, *args, *self._connect_args())
+            # the loops (short bursts, hard deadlines) preempt the service's estimation
+            priority = config.rt_priority + (name != "service") if config.rt_priority else 0
+            child = Child(name, argv, log, nice=config.realtime_nice, rt_priority=priority)
             self.children.append(child)
             started.append((child, token))
             self.say(f"started {name} (pid {child.pid})")
@@ -454,10 +655,15 @@ class DemoSupervisor:
             if not self._wait_for_token(child, token):
                 return False
         self._start_dashboard(log)
+        # Full collections of everything imported would stall the monitor for tens of ms.
+        gc.collect()
+        gc.freeze()
         self.running_s = time.perf_counter()
         self._cpu_at_run = {c.name: c.cpu_s() for c in self.children}
         own = os.times()
         self._own_cpu_at_run = own.user + own.system
+        self._load_at_run = list(os.getloadavg())
+        self._scheduling = {c.name: c.scheduling() for c in self.children}
         startup = self.running_s - self.started_s
         until = "Ctrl-C" if config.duration_s is None else f"{config.duration_s:g} s (or Ctrl-C)"
         self.say(f"all processes up in {startup:.1f} s; running until {until}")
@@ -582,6 +788,8 @@ class DemoSupervisor:
             own = os.times()
             used = own.user + own.system - self._own_cpu_at_run
             self.cpu_percent["supervisor"] = round(100.0 * used / wall, 1)
+            known = [v for v in self.cpu_percent.values() if v is not None]
+            self.cpu_percent["total"] = round(sum(known), 1) if known else None
         return {
             "service": self._query(keys.service_stats(config.slave), 2.0),
             "slave": self._query(keys.process_stats(config.slave, "slave"), 2.0),
@@ -613,6 +821,7 @@ class DemoSupervisor:
             "log": str(self.log_path),
             "zenoh_endpoint": self.endpoint,
             "pids": {c.name: c.pid for c in self.children},
+            "scheduling": self._scheduling,
             "messages_lost": lost,
             "master_to_slave_latency_ms": {
                 "p50": setpoint_latency.get("p50"),
@@ -638,14 +847,21 @@ class DemoSupervisor:
                 "slave": (slave or {}).get("loop", {}).get("overruns"),
                 "master": (master or {}).get("loop", {}).get("overruns"),
             },
+            "loop_overrun_fraction": {
+                "slave": (slave or {}).get("loop", {}).get("overrun_fraction"),
+                "master": (master or {}).get("loop", {}).get("overrun_fraction"),
+            },
+            "loops": {"slave": _loop_summary(slave), "master": _loop_summary(master)},
             "malformed_dropped": {
                 "service": (service or {}).get("malformed", {}).get("dropped"),
                 "slave": (slave or {}).get("setpoints", {}).get("malformed"),
                 "supervisor": self.monitor.malformed,
             },
             "slave_holds": (slave or {}).get("holds"),
+            "cpu_percent": self.cpu_percent,
             "cpu_percent_of_one_core": self.cpu_percent,
             "machine_load_average": list(os.getloadavg()),
+            "machine_load_average_at_start": self._load_at_run,
             "stats": final,
         }
 
@@ -684,12 +900,10 @@ class DemoSupervisor:
                 f"|F| > {force['contact_threshold_n']:g} N; "
                 f"{lagfree:.1%} against the true force low-passed like the estimate)"
             )
-        overruns = summary["loop_overruns"]
-        self.say(
-            f"loop overruns: slave {overruns['slave']}, master {overruns['master']}; "
-            f"slave holds: {summary['slave_holds']}"
-        )
-        cpu = ", ".join(f"{k} {v:.0f}%" for k, v in summary["cpu_percent_of_one_core"].items() if v)
+        for name, loop in summary["loops"].items():
+            self.say(f"{name} loop: {_fmt_loop(loop)}")
+        self.say(f"slave holds: {summary['slave_holds']}")
+        cpu = ", ".join(f"{k} {v:.0f}%" for k, v in summary["cpu_percent"].items() if v is not None)
         load = ", ".join(f"{x:.1f}" for x in summary["machine_load_average"])
         self.say(f"CPU while running (% of one core): {cpu}; machine load average {load}")
 

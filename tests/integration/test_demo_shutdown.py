@@ -11,6 +11,11 @@ import time
 import pytest
 from teleop_helpers import STARTUP_TIMEOUT_S, alive, python_module, wait_for
 
+from teleop_force.cli import demo
+from teleop_force.service.accuracy import AccuracyConfig
+from teleop_force.transport import keys
+from teleop_force.transport import messages as m
+
 pytestmark = pytest.mark.zenoh  # the demo's processes talk over Zenoh on loopback
 
 
@@ -62,6 +67,26 @@ def test_demo_runs_for_its_duration_and_leaves_nothing(tmp_path):
     assert summary["messages_lost"]["total"] == 0
     assert summary["slave_to_estimate_latency_ms"]["count"] > 500
     assert (tmp_path / summary["recording"].split("/")[-1]).stat().st_size > 10_000
+    # the real-time figures (their values depend on the machine: printed, not asserted)
+    for name in ("master", "slave"):
+        loop = summary["loops"][name]
+        assert loop["ticks"] > 500 and loop["expected_ticks"] > 500
+        assert loop["ticks_fraction"] == pytest.approx(loop["ticks"] / loop["expected_ticks"], 1e-3)
+        assert loop["overruns"] == summary["loop_overruns"][name] <= loop["ticks"]
+        assert summary["loop_overrun_fraction"][name] == loop["overrun_fraction"]
+        assert loop["missed_ticks"] >= 0
+        print(f"{name} loop: {loop}")
+    assert summary["slave_holds"] is not None
+    cpu = summary["cpu_percent"]
+    assert set(cpu) == {"service", "slave", "master", "supervisor", "total"}
+    assert cpu["total"] == pytest.approx(sum(v for k, v in cpu.items() if k != "total"), abs=0.2)
+    assert summary["cpu_percent_of_one_core"] == cpu
+    assert (
+        len(summary["machine_load_average"]) == len(summary["machine_load_average_at_start"]) == 3
+    )
+    assert set(summary["scheduling"]) == {"service", "slave", "master"}
+    print(f"CPU {cpu}, scheduling {summary['scheduling']}")
+    assert "slave loop:" in out and "master loop:" in out and "slave holds:" in out
 
 
 def test_demo_stops_everything_on_sigterm(tmp_path):
@@ -88,3 +113,32 @@ def test_children_go_when_the_supervisor_is_killed(tmp_path):
         os.kill(pid, signal.SIGKILL)
     logs = "".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert not left, f"children still alive 30 s after the supervisor died: {left}\n{logs}"
+
+
+def test_monitor_drains_its_ring_channels(zenoh_pair):
+    monitor = demo._Monitor(AccuracyConfig())
+    subscribers = monitor.subscribe(zenoh_pair.listener, "mon-slave")
+    publisher = zenoh_pair.connector.declare_publisher(keys.measured_cf("mon-slave"))
+    try:
+        wait_for(lambda: publisher.matching_status.matching, 10.0, "the monitor's subscriber")
+        time.sleep(0.2)  # let the routes settle
+        for k in range(300):
+            publisher.put(m.ContactForce(k, 0, (0.0, -1.0, 0.0)).encode())
+            zenoh_pair.connector.put(
+                keys.estimated_cf("mon-slave"),
+                m.ForceEstimateMessage(
+                    k, 0, k, (0.0, -1.1, 0.0), [0.0] * 3, [True] * 3, [1.0] * 3, [0.0] * 3,
+                    [0.0] * 3,
+                ).encode(),
+            )  # fmt: skip
+        zenoh_pair.connector.put(keys.status("mon-slave"), m.Status(0, 0, 1, "ok").encode())
+        wait_for(lambda: monitor.estimates.received == 300, 10.0, "the monitor to drain")
+        wait_for(lambda: monitor.state == "following", 10.0, "the status")
+    finally:
+        monitor.close()
+        publisher.undeclare()
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    assert monitor.true_forces.received == 300 and monitor.true_forces.lost == 0
+    assert monitor.estimates.lost == 0 and monitor.malformed == 0
+    assert monitor.accuracy.summary()["paired_samples"] == 300

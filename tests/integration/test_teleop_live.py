@@ -157,6 +157,11 @@ def test_processes_exchange_over_zenoh_without_loss(live):
     assert service["estimates"]["published"] == service["joint_states"]["received"]
     seqs = [js.seq for js in live["joint_states_seen"]]
     assert np.all(np.diff(seqs) == 1)  # the test's subscriber lost nothing either
+    for loop in (slave["loop"], master["loop"]):  # counted against the clock (not asserted)
+        assert loop["ticks"] > 500 and loop["expected_ticks"] > 500
+        assert 0 <= loop["overruns"] <= loop["ticks"] and loop["missed_ticks"] >= 0
+        assert loop["gc_frozen_objects"] > 10_000  # the processes froze their heap
+        print(f"loop: {loop}")
     assert live["exit_codes"]["service"] == 0 and live["exit_codes"]["slave"] == 0
 
 
