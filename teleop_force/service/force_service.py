@@ -58,6 +58,7 @@ Run: ``python -m teleop_force.service.force_service --device slave --connect tcp
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
 import os
@@ -270,7 +271,7 @@ class ForceService:
         self._control_thread.start()
         if self.config.zenoh_floor:
             self._entities.append(
-                declare_subscriber(session, self._own_js_key, self._on_own_js_floor)
+                declare_subscriber(session, self._own_js_key, self._on_own_js_floor, direct=True)
             )
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
@@ -362,7 +363,7 @@ class ForceService:
     def _subscribe_recorded(self, callback: Any) -> None:
         for kind in _RECORDED_KINDS:
             self.recording.entities.append(
-                declare_subscriber(self.session, keys.any_device(kind), callback)
+                declare_subscriber(self.session, keys.any_device(kind), callback, direct=True)
             )
 
     def _on_own_js_floor(self, sample: zenoh.Sample) -> None:
@@ -775,6 +776,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         service = ForceService(session, model, config, model_path=model_path, memory=trimmer)
         try:
             service.start()
+            # a long-running 1 kHz process: what start-up made is never garbage, so the
+            # collector's full passes (tens of ms, stalls of the receive path) skip it
+            gc.collect()
+            gc.freeze()
             log(
                 ROLE,
                 f"estimating on {config.device} with {model_path.name} ({model.friction.kind})",

@@ -46,11 +46,22 @@ def declare_data_publisher(
 
 
 def declare_subscriber(
-    session: zenoh.Session, key: str, callback: Callable[[zenoh.Sample], Any]
+    session: zenoh.Session,
+    key: str,
+    callback: Callable[[zenoh.Sample], Any],
+    *,
+    direct: bool = False,
 ) -> zenoh.Subscriber[None]:
-    """Declare a callback subscriber."""
+    """Declare a callback subscriber.
+
+    ``direct``: run ``callback`` on the Zenoh thread that receives the sample (zenoh-python's
+    ``Callback(indirect=False)``) instead of handing it to a Python thread first: no thread
+    hop per sample, for short callbacks that must not add latency (the 1 kHz paths). Such a
+    callback holds up that Zenoh thread while it runs.
+    """
+    handler: Any = zenoh.handlers.Callback(callback, indirect=False) if direct else callback
     try:
-        return session.declare_subscriber(key, callback)
+        return session.declare_subscriber(key, handler)
     except zenoh.ZError as exc:
         raise TransportError(f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}") from None
 
