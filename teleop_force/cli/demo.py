@@ -83,6 +83,7 @@ import importlib.util
 import math
 import os
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -149,6 +150,12 @@ class DemoConfig:
             otherwise waits for a CPU for tens of milliseconds at a time (module docstring).
             Needs root, ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO``; without, the children run
             at ``realtime_nice``.
+        service_args: Extra arguments of the service process (``--adapt``,
+            ``--zenoh-floor``...).
+        router: Run through a Zenoh router (``python -m teleop_force.transport.router`` on
+            the rendezvous port): every process, the supervisor included, opens its session
+            in client mode and connects to it, as master and slave on two hosts would; no
+            peer-to-peer link. Its CPU is reported as ``router``.
         realtime_nice: Nice value of the service, the slave and the master (``None``: the
             supervisor's); it matters when they do not run in the real-time class. A
             negative value needs the same privilege.
@@ -172,6 +179,8 @@ class DemoConfig:
     accuracy: AccuracyConfig = field(default_factory=AccuracyConfig)
     rt_priority: int = DEFAULT_RT_PRIORITY
     realtime_nice: int | None = DEFAULT_REALTIME_NICE
+    service_args: tuple[str, ...] = ()
+    router: bool = False
 
     def __post_init__(self) -> None:
         """Check the ranges and ids."""
@@ -576,9 +585,14 @@ class DemoSupervisor:
                 os.setpriority(os.PRIO_PROCESS, 0, config.realtime_nice)
         port = config.zenoh_port or free_tcp_port()
         self.endpoint = listen_endpoint(port)
-        self.session = open_session(
-            ZenohOptions(mode="peer", listen=(self.endpoint,), multicast_scouting=False)
-        )
+        if config.router:
+            self._start_router(log)
+            options = ZenohOptions(
+                mode="client", connect=(self.endpoint,), multicast_scouting=False
+            )
+        else:
+            options = ZenohOptions(mode="peer", listen=(self.endpoint,), multicast_scouting=False)
+        self.session = open_session(options)
         entities: list[Any] = []
         final: dict[str, Any] = {}
         try:
@@ -588,7 +602,8 @@ class DemoSupervisor:
                 )
             )
             entities += self.monitor.subscribe(self.session, config.slave)
-            self.say(f"zenoh endpoint: {self.endpoint} (peer mode, no multicast)")
+            topology = "router, clients" if config.router else "peer mode"
+            self.say(f"zenoh endpoint: {self.endpoint} ({topology}, no multicast)")
             self.say(f"recording: {self.recording}   logs: {self.log_path}")
             if self._start_all(log):
                 self._watch()
@@ -607,7 +622,24 @@ class DemoSupervisor:
         return summary
 
     def _connect_args(self) -> list[str]:
+        if self.config.router:
+            return ["--mode", "client", "--connect", self.endpoint, "--no-multicast"]
         return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
+
+    def _start_router(self, log: IO[bytes]) -> None:
+        """Start the router on the rendezvous endpoint; wait until it accepts connections."""
+        argv = _python_module("teleop_force.transport.router", "--listen", self.endpoint)
+        child = Child("router", argv, log, nice=self.config.realtime_nice)
+        self.children.append(child)
+        self.say(f"started router (pid {child.pid}) on {self.endpoint}")
+        host, port = self.endpoint.removeprefix("tcp/").rsplit(":", 1)
+        deadline = time.perf_counter() + self.config.startup_timeout_s
+        while time.perf_counter() < deadline and child.running():
+            with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.2):
+                return
+            time.sleep(0.05)
+        child.stop()
+        raise TransportError(f"the router did not come up on {self.endpoint}; see {self.log_path}")
 
     def _start_all(self, log: IO[bytes]) -> bool:
         config = self.config
@@ -617,6 +649,7 @@ class DemoSupervisor:
         ]  # fmt: skip
         if config.model is not None:
             service += ["--model", str(config.model)]
+        service += list(config.service_args)
         wait = str(config.startup_timeout_s)
         surface = str(config.surface_y_m)
         master = [

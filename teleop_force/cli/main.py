@@ -74,12 +74,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from teleop_force.estimation.batch import evaluate_recordings
     from teleop_force.identification.dynamic_model import DynamicModel
-    from teleop_force.identification.pipeline import evaluate_model
 
     model = DynamicModel.load(args.model)
     recordings = _load_recordings(args.data, model.n_joints, robot=model.robot)
-    result = evaluate_model(model, recordings)
+    # evaluate_model's figures, from the streaming estimator's numbers computed in batch
+    result = evaluate_recordings(model, recordings)
     payload = {
         "relative_rms": [float(x) for x in result["relative_rms"]],
         "samples": result["samples"],
@@ -100,21 +101,38 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
-    from teleop_force.estimation.estimator import ForceEstimator
+    from teleop_force.estimation.batch import BatchEstimator
     from teleop_force.identification.dynamic_model import DynamicModel
 
     model = DynamicModel.load(args.model)
     (recording,) = _load_recordings([args.data], model.n_joints, robot=model.robot)
-    estimator = ForceEstimator(model)
-    forces = np.empty((recording.t_s.size, 3))
-    for k in range(recording.t_s.size):
-        forces[k] = estimator.update(
-            recording.t_s[k], recording.q_rad[k], recording.tau_nm[k]
-        ).force_tip_in_base_n
-    table = np.column_stack((recording.t_s, forces))
-    np.savetxt(args.output, table, delimiter=",", header="t,f_x,f_y,f_z", comments="", fmt="%.9g")
+    # the streaming estimator's numbers, computed over the whole recording at once
+    estimates = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
+    _write_force_table(Path(args.output), recording.t_s, estimates.force_tip_in_base_n)
     _log(f"{recording.t_s.size} estimates written to {args.output}")
     return EXIT_OK
+
+
+#: Rows formatted at once by :func:`_write_force_table` (bounds the text held in memory).
+_FORCE_ROWS_PER_WRITE = 65_536
+
+
+def _write_force_table(path: Path, t_s: np.ndarray, force_n: np.ndarray) -> None:
+    """Write ``t,f_x,f_y,f_z`` rows (``%.9g``, as ``np.savetxt`` would) to ``path``.
+
+    One ``%`` format per block of rows instead of one per row: the same text, ~4x faster.
+    """
+    from teleop_force.errors import DataError
+
+    table = np.column_stack((t_s, force_n))
+    try:
+        with open(path, "w", encoding="utf-8", newline="\n") as out:
+            out.write("t,f_x,f_y,f_z\n")
+            for start in range(0, table.shape[0], _FORCE_ROWS_PER_WRITE):
+                rows = table[start : start + _FORCE_ROWS_PER_WRITE]
+                out.write(("%.9g,%.9g,%.9g,%.9g\n" * rows.shape[0]) % tuple(rows.ravel().tolist()))
+    except OSError as exc:
+        raise DataError(f"cannot write file: {exc.strerror or exc}", path=path) from None
 
 
 def _cmd_residual(args: argparse.Namespace) -> int:
@@ -196,10 +214,67 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    if args.record is not None and not args.with_service:
+        raise ConfigurationError("--record needs --with-service (the service records)")
+    if args.over_zenoh and args.record is None:
+        raise ConfigurationError("--over-zenoh goes with --with-service --record")
+    if args.record is not None and not args.over_zenoh:
+        return _reestimate(args)
+    return _publish(args)
+
+
+def _replay_model(args: argparse.Namespace, metadata: dict[str, str]) -> tuple[Any, Path]:
+    """Load ``--model``, else the recording's model, else the shipped one (``--with-service``)."""
+    from teleop_force.service.force_service import load_model
+
+    recorded = metadata.get("model", "")
+    chosen = args.model or (recorded if recorded and Path(recorded).is_file() else None)
+    return load_model(None if chosen is None else Path(chosen))
+
+
+def _reestimate(args: argparse.Namespace) -> int:
+    """``replay --with-service --record``: the service's recording of a replay, in batch."""
+    from teleop_force.io.mcap_session import SessionReader
+    from teleop_force.service.reestimation import reestimate_session
+
+    reader = SessionReader(Path(args.recording))
+    model, model_path = _replay_model(args, reader.metadata)
+    _log(f"re-estimating {reader.path} with {model_path.name} ({model.friction.kind}), in batch")
+    done = reestimate_session(
+        reader, Path(args.record), model, model_path=model_path, device=args.device
+    )
+    total = sum(done.replayed.values())
+    rate = total / done.duration_s if done.duration_s > 0 else 0.0
+    payload: dict[str, Any] = {
+        "device": done.device,
+        "published": done.replayed,  # what a replay publishes: here, fed to the batch service
+        "duration_s": done.duration_s,
+        "recorded_span_s": done.recorded_span_s,
+        "matched": True,
+        "stopped": False,
+        "messages_per_s": round(rate, 1),
+        "mode": "batch",
+        "recorded": {"path": str(done.target), "messages": done.written},
+        "service": done.service,
+    }
+    speedup = done.recorded_span_s / done.duration_s if done.duration_s > 0 else 0.0
+    stats = done.service
+    _log(
+        f"re-estimated {total} messages in {done.duration_s:.2f} s ({speedup:.0f}x the "
+        f"recorded span of {done.recorded_span_s:.2f} s): {stats['estimates']['published']} "
+        f"estimates, recorded to {done.target}"
+    )
+    if args.json:
+        print(json.dumps(payload))
+    return EXIT_OK
+
+
+def _publish(args: argparse.Namespace) -> int:
+    """``replay``: publish over Zenoh at the speed asked (``--with-service``: run the service)."""
     from teleop_force.io.mcap_session import SessionReader
     from teleop_force.io.replay import ReplayConfig, primary_device, replay_session
     from teleop_force.process.lifetime import StopSignal
-    from teleop_force.service.force_service import ForceService, ServiceConfig, load_model
+    from teleop_force.service.force_service import ForceService, ServiceConfig
     from teleop_force.transport.session import open_session, options_from_args
 
     speed = 0.0 if args.fast else args.speed
@@ -209,15 +284,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         device=args.device,
         wait_subscribers_s=0.0 if args.no_wait else args.wait_subscribers,
     )
-    if args.record is not None and not args.with_service:
-        raise ConfigurationError("--record needs --with-service (the service records)")
     reader = SessionReader(config.path)  # unreadable recording: exit 2 before opening zenoh
     device = primary_device(reader, config.device)
     model = model_path = None
     if args.with_service:
-        recorded = reader.metadata.get("model", "")
-        chosen = args.model or (recorded if recorded and Path(recorded).is_file() else None)
-        model, model_path = load_model(None if chosen is None else Path(chosen))
+        model, model_path = _replay_model(args, reader.metadata)
     stop = StopSignal().install()
     session = open_session(options_from_args(args))
     service = None
@@ -253,7 +324,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     total = sum(result.published.values())
     _log(
         f"published {total} messages in {result.duration_s:.2f} s "
-        f"(recorded span {result.recorded_span_s:.2f} s)"
+        f"({result.messages_per_s:.0f} messages/s; recorded span {result.recorded_span_s:.2f} s)"
     )
     if service is not None:
         stats = payload["service"]
@@ -488,7 +559,14 @@ def _add_replay(subparsers: _Subparsers) -> None:
         "--record",
         default=None,
         metavar="PATH",
-        help="with --with-service: record the replayed stream and the new estimates",
+        help="with --with-service: write the recording the service would make of the replay,"
+        " its estimates computed again, in batch (nothing is published)",
+    )
+    p.add_argument(
+        "--over-zenoh",
+        action="store_true",
+        help="with --with-service --record: publish over Zenoh at the speed asked and record"
+        " the in-process service live, instead of re-estimating in batch",
     )
     p.add_argument(
         "--wait-subscribers",

@@ -13,13 +13,18 @@ the same joint states in the same order give the same estimates, bit for bit.
 
 Before the first message the replay waits (``wait_subscribers_s``) until the primary device's
 joint-state publisher has a matching subscriber, because Zenoh may drop what is published in
-the first milliseconds after a match.
+the first milliseconds after a match. The result reports the throughput in messages per
+second (with ``speed == 0``, the replay's own).
+
+Re-estimating a recording with a model (``replay --with-service --record``) needs no Zenoh:
+:mod:`teleop_force.service.reestimation` computes it in batch.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import struct
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +50,10 @@ REPLAYED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, k
 ROLE: Final = "replay"
 #: Sleeping is accurate to ~0.1 ms; the last part before a message's time is spun.
 _SPIN_S: Final = 2e-4
+#: Every wire message begins with magic (2), version, type, seq (u32), then the stamp ``t_ns``
+#: (i64, little-endian): restamping rewrites those 8 bytes instead of rebuilding the message.
+_STAMP_OFFSET: Final = 8
+_STAMP: Final = struct.Struct("<q")
 
 
 @dataclass(frozen=True)
@@ -90,6 +99,8 @@ class ReplayResult:
         recorded_span_s: Log-time span of the replayed messages in the recording.
         matched: Whether a subscriber of the primary joint states was found before starting.
         stopped: Whether the replay was interrupted.
+        messages_per_s: Messages published per second of wall time (``--fast``: the
+            throughput of the replay itself).
 
     """
 
@@ -99,6 +110,7 @@ class ReplayResult:
     recorded_span_s: float
     matched: bool
     stopped: bool
+    messages_per_s: float = 0.0
 
     def __post_init__(self) -> None:
         """Check the counts and durations."""
@@ -106,6 +118,8 @@ class ReplayResult:
             raise ConfigurationError("durations must be >= 0")
         if any(count < 0 for count in self.published.values()):
             raise ConfigurationError("published counts must be >= 0")
+        if not self.messages_per_s >= 0.0:
+            raise ConfigurationError("messages_per_s must be >= 0")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -129,7 +143,8 @@ def primary_device(reader: SessionReader, device: str | None = None) -> str:
     )
 
 
-def _replayed_topics(reader: SessionReader) -> list[str]:
+def replayed_topics(reader: SessionReader) -> list[str]:
+    """Return the recorded keys a replay publishes (the kinds of :data:`REPLAYED_KINDS`)."""
     topics = []
     for topic in reader.topics:
         try:
@@ -148,7 +163,7 @@ def replay_session(
     stop = stop if stop is not None else StopSignal()
     reader = SessionReader(config.path)
     device = primary_device(reader, config.device)
-    topics = _replayed_topics(reader)
+    topics = replayed_topics(reader)
     primary_js = keys.measured_js(device)
     if primary_js not in topics:
         raise DataError(f"no joint states of {device!r} ({primary_js}) to replay", path=config.path)
@@ -179,14 +194,16 @@ def replay_session(
             last_log_ns = log_ns
             if scale:
                 _sleep_until(started_s + (log_ns - first_log_ns) * scale)
+            payload = message.encode()
             if shift_ns:
-                message = dataclasses.replace(message, t_ns=message.t_ns + shift_ns)
-            put(publishers[topic], message.encode())
+                payload = _restamped(payload, message.t_ns + shift_ns)
+            put(publishers[topic], payload)
             published[topic] += 1
         duration = time.perf_counter() - started_s
     finally:
         undeclare_all(token, *publishers.values())
     span = 0.0 if first_log_ns is None else (last_log_ns - first_log_ns) * 1e-9
+    total = sum(published.values())
     return ReplayResult(
         device=device,
         published=published,
@@ -194,7 +211,15 @@ def replay_session(
         recorded_span_s=round(span, 6),
         matched=matched,
         stopped=stop.is_set(),
+        messages_per_s=round(total / duration, 1) if duration > 0.0 else 0.0,
     )
+
+
+def _restamped(payload: bytes, t_ns: int) -> bytes:
+    """``payload`` with the stamp ``t_ns`` in its header (docs/wire_format.md), nothing else."""
+    out = bytearray(payload)
+    _STAMP.pack_into(out, _STAMP_OFFSET, t_ns)
+    return bytes(out)
 
 
 def _sleep_until(deadline_s: float) -> None:
