@@ -98,6 +98,7 @@ from typing import IO, Any, Final
 import zenoh
 
 from teleop_force.errors import ConfigurationError, DataError, MessageError, TransportError
+from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.process.lifetime import SUPERVISOR_PID_ENV, StopSignal, write_json
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
 from teleop_force.transport import keys
@@ -152,6 +153,7 @@ class DemoConfig:
             at ``realtime_nice``.
         service_args: Extra arguments of the service process (``--adapt``,
             ``--zenoh-floor``...).
+        record: Record the session (every message, by the service, to ``record_dir``).
         router: Run through a Zenoh router (``python -m teleop_force.transport.router`` on
             the rendezvous port): every process, the supervisor included, opens its session
             in client mode and connects to it, as master and slave on two hosts would; no
@@ -181,6 +183,7 @@ class DemoConfig:
     realtime_nice: int | None = DEFAULT_REALTIME_NICE
     service_args: tuple[str, ...] = ()
     router: bool = False
+    record: bool = True
 
     def __post_init__(self) -> None:
         """Check the ranges and ids."""
@@ -553,6 +556,7 @@ class DemoSupervisor:
         self.running_s = 0.0
         self.ended_s = 0.0
         self.cpu_percent: dict[str, float | None] = {}
+        self._recorder_stats: dict[str, Any] | None = None
         self._cpu_at_run: dict[str, float | None] = {}
         self._own_cpu_at_run = 0.0
         self._load_at_run: list[float] | None = None
@@ -626,6 +630,23 @@ class DemoSupervisor:
             return ["--mode", "client", "--connect", self.endpoint, "--no-multicast"]
         return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
 
+    def _start_recorder(self, log: IO[bytes]) -> bool:
+        """Start the session recorder and wait for it, so that it records from the first sample.
+
+        Recording runs in a process of its own, off the service's 1 kHz path
+        (:mod:`teleop_force.service.session_recorder`).
+        """
+        config = self.config
+        args = [
+            "--record", str(self.recording), "--device", config.slave, "--master", config.master,
+            "--model", str(config.model or DEFAULT_MODEL_PATH),
+        ]  # fmt: skip
+        argv = _python_module("teleop_force.service.session_recorder", *args, *self._connect_args())
+        child = Child("recorder", argv, log, nice=config.realtime_nice)
+        self.children.append(child)
+        self.say(f"started recorder (pid {child.pid})")
+        return self._wait_for_token(child, keys.alive(config.slave, "recorder"))
+
     def _start_router(self, log: IO[bytes]) -> None:
         """Start the router on the rendezvous endpoint; wait until it accepts connections."""
         argv = _python_module("teleop_force.transport.router", "--listen", self.endpoint)
@@ -644,11 +665,11 @@ class DemoSupervisor:
     def _start_all(self, log: IO[bytes]) -> bool:
         config = self.config
         self.started_s = time.perf_counter()
-        service = [
-            "--device", config.slave, "--master", config.master, "--record", str(self.recording),
-        ]  # fmt: skip
+        service = ["--device", config.slave, "--master", config.master]
         if config.model is not None:
             service += ["--model", str(config.model)]
+        if config.record and not self._start_recorder(log):
+            return False  # started first: it records from the first sample
         service += list(config.service_args)
         wait = str(config.startup_timeout_s)
         surface = str(config.surface_y_m)
@@ -673,10 +694,16 @@ class DemoSupervisor:
             ("master", "master_slave.master", master, keys.alive(config.master, "master")),
         ]
         # Started together (their imports overlap); the order of the data flow is kept by the
-        # handshakes: the slave streams once the service subscribes to its joint states, the
-        # master once the slave subscribes to its setpoints.
+        # handshakes: the slave streams once something subscribes to its joint states, the
+        # master once the slave subscribes to its setpoints. With a recorder (a subscriber of
+        # every joint state too), the slave starts only once the service is up, so that the
+        # service sees the stream from its first sample.
         started = []
         for name, module, args, token in steps:
+            if name == "slave" and config.record:
+                for child, waited in started:
+                    if not self._wait_for_token(child, waited):
+                        return False
             argv = _python_module(module, *args, *self._connect_args())
             # the loops (short bursts, hard deadlines) preempt the service's estimation
             priority = config.rt_priority + (name != "service") if config.rt_priority else 0
@@ -804,6 +831,9 @@ class DemoSupervisor:
             ),
             "estimates_at_supervisor": self.monitor.estimates.lost,
             "true_forces_at_supervisor": self.monitor.true_forces.lost,
+            "dropped_by_recorder": int(
+                ((self._recorder_stats or {}).get("recorder") or {}).get("dropped", 0)
+            ),
         }
         parts["total"] = sum(parts.values())
         return parts
@@ -827,10 +857,15 @@ class DemoSupervisor:
             "service": self._query(keys.service_stats(config.slave), 2.0),
             "slave": self._query(keys.process_stats(config.slave, "slave"), 2.0),
             "master": self._query(keys.process_stats(config.master, "master"), 2.0),
+            "recorder": (
+                self._query(keys.process_stats(config.slave, "recorder"), 2.0)
+                if config.record
+                else None
+            ),
         }
 
     def _stop_children(self) -> None:
-        order = {"master": 0, "dashboard": 1, "slave": 2, "service": 3}
+        order = {"master": 0, "dashboard": 1, "slave": 2, "service": 3, "recorder": 4}
         for child in sorted(self.children, key=lambda c: order.get(c.name, 9)):
             was_running = child.running()
             code = child.stop()
@@ -841,6 +876,7 @@ class DemoSupervisor:
 
     def _summary(self, final: dict[str, Any]) -> dict[str, Any]:
         service, slave, master = final.get("service"), final.get("slave"), final.get("master")
+        self._recorder_stats = final.get("recorder")
         lost = self._lost(service, slave)
         setpoint_latency = (slave or {}).get("setpoints", {}).get("latency_ms") or {}
         estimate_latency = (service or {}).get("latency_ms") or {}

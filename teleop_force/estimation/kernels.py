@@ -437,7 +437,7 @@ def tip_force_into(
 # -- the step, in two halves around pinocchio -------------------------------------------------
 
 
-@njit_cached()
+@njit_cached(nogil=False)
 def prefilter_step(
     state: np.ndarray,
     sample: np.ndarray,
@@ -487,7 +487,7 @@ def prefilter_step(
     return STEP_OK
 
 
-@njit_cached()
+@njit_cached(nogil=False)
 def finish_step(
     state: np.ndarray,
     sample: np.ndarray,

@@ -58,6 +58,7 @@ Run: ``python -m teleop_force.service.force_service --device slave --connect tcp
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import math
@@ -209,6 +210,7 @@ class ForceService:
         self.memory = memory
         self.model, self.model_path = model, model_path
         self.estimator = ForceEstimator(model)
+        _warm_up(self.estimator)
         self.n_joints = model.n_joints
         self.allowed_models = model_folders(self.config.models_dirs)
         self.allowed_records = record_folders(self.config.record_dirs)
@@ -276,7 +278,9 @@ class ForceService:
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
         else:
-            self._entities.append(declare_subscriber(session, self._own_js_key, self._on_own_js))
+            self._entities.append(
+                declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
+            )
             if self.recording.recorder is not None:
                 self._subscribe_recorded(self._on_recorded)
         self._entities.append(
@@ -656,6 +660,19 @@ class ForceService:
                 "controls": self.controls.to_dict(),
                 "last_estimate": estimates.last_estimate_dict(),
             }
+
+
+def _warm_up(estimator: ForceEstimator) -> None:
+    """Run the step once and reset, so that the compiled code is loaded before the first sample.
+
+    Loading numba's cached machine code (or compiling it on a machine without a cache) takes
+    from a tenth of a second to seconds: done here, not on the first joint state.
+    """
+    n = estimator.n
+    with contextlib.suppress(TeleopForceError):
+        estimator.step(0.0, [0.0] * n, [0.0] * n)
+        estimator.step(1e-3, [0.0] * n, [0.0] * n)
+    estimator.reset()
 
 
 def _try_estimator(estimator: ForceEstimator, path: Path) -> None:
