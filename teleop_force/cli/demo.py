@@ -698,7 +698,7 @@ class DemoSupervisor:
         # master once the slave subscribes to its setpoints. With a recorder (a subscriber of
         # every joint state too), the slave starts only once the service is up, so that the
         # service sees the stream from its first sample.
-        started = []
+        started: list[tuple[Child, str]] = []
         for name, module, args, token in steps:
             if name == "slave" and config.record:
                 for child, waited in started:

@@ -201,6 +201,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         motion=args.motion,
         haptic_feedback=args.haptic_feedback,
         accuracy=AccuracyConfig(contact_threshold_n=args.contact_threshold),
+        record=not args.no_record,
+        router=args.router,
+        service_args=tuple(
+            flag
+            for flag, on in (("--adapt", args.adapt), ("--zenoh-floor", args.zenoh_floor))
+            if on
+        ),
+        **({} if args.rt_priority is None else {"rt_priority": args.rt_priority}),
+        **({} if args.nice is None else {"realtime_nice": args.nice}),
     )
     if config.model is not None:
         from teleop_force.identification.dynamic_model import DynamicModel
@@ -530,6 +539,25 @@ def _add_demo(subparsers: _Subparsers) -> None:
         metavar="N",
         help="true force above which a sample counts as contact (default 0.1 N)",
     )
+    p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.add_argument("--adapt", action="store_true", help="start the service with WN adaptation on")
+    p.add_argument(
+        "--router", action="store_true",
+        help="run through a Zenoh router: every process a client of it (as on two hosts)",
+    )  # fmt: skip
+    p.add_argument(
+        "--zenoh-floor", action="store_true",
+        help="run the service as its Zenoh floor (same traffic, no work; for benchmarks)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rt-priority", type=int, default=None, metavar="P",
+        help="SCHED_FIFO priority of the service (master and slave loops at P+1; 0: ordinary "
+        "scheduling; needs root or CAP_SYS_NICE, else ignored; default 10)",
+    )  # fmt: skip
+    p.add_argument(
+        "--nice", type=int, default=None, metavar="N",
+        help="nice value of the children and the supervisor (default -10, where permitted)",
+    )  # fmt: skip
     p.set_defaults(run=_cmd_demo)
 
 
