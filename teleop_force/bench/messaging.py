@@ -37,7 +37,10 @@ def _service_pid(demo_pid: int) -> int | None:
 
 
 def run_demo(
-    duration_s: float, model_path: Path | None = None, startup_timeout_s: float = 180.0
+    duration_s: float,
+    model_path: Path | None = None,
+    startup_timeout_s: float = 180.0,
+    extra_args: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Run the headless demo for ``duration_s``; return its summary plus the service's peak RSS.
 
@@ -53,6 +56,7 @@ def run_demo(
         ]  # fmt: skip
         if model_path is not None:
             argv += ["--model", str(model_path)]
+        argv += list(extra_args)
         started = time.perf_counter()
         log_path = Path(tmp) / "demo-stdout.txt"
         with open(log_path, "wb") as log:
@@ -118,4 +122,34 @@ def messaging_figures(summary: dict[str, Any]) -> dict[str, Any]:
         "messaging_cpu_percent_of_one_core": summary.get("cpu_percent_of_one_core"),
         "messaging_loop_overruns": summary.get("loop_overruns"),
         "service_peak_rss_mb_demo": summary.get("service_peak_rss_mb"),
+    }
+
+
+def realtime_figures(summary: dict[str, Any], floor: dict[str, Any] | None) -> dict[str, Any]:
+    """Return the 1 kHz budget of a demo run: CPU per process against the Zenoh floor.
+
+    ``floor`` is the summary of a second run of the same demo with the service as its Zenoh
+    floor (``--zenoh-floor``: the same subscriptions and publication, no work).
+    """
+    cpu = summary.get("cpu_percent") or {}
+    floor_cpu = (floor or {}).get("cpu_percent") or {}
+    service, service_floor = cpu.get("service"), floor_cpu.get("service")
+    fractions = summary.get("loop_overrun_fraction") or {}
+    loops = summary.get("loops") or {}
+    ticks = {name: (loop or {}).get("ticks_fraction") for name, loop in loops.items()}
+    known_fractions = [v for v in fractions.values() if v is not None]
+    known_ticks = [v for v in ticks.values() if v is not None]
+    return {
+        "service_cpu_percent_at_1khz": service,
+        "service_zenoh_floor_cpu_percent": service_floor,
+        "service_cpu_above_floor_points": (
+            None if service is None or service_floor is None else round(service - service_floor, 1)
+        ),
+        "demo_cpu_percent_total": cpu.get("total"),
+        "demo_cpu_percent_by_process": {k: v for k, v in cpu.items() if k != "total"},
+        "demo_slave_holds": summary.get("slave_holds"),
+        "demo_loop_overrun_fraction": max(known_fractions) if known_fractions else None,
+        "demo_loop_overrun_fraction_by_process": fractions,
+        "demo_loop_ticks_fraction": min(known_ticks) if known_ticks else None,
+        "demo_load_average_at_start": summary.get("machine_load_average_at_start"),
     }
