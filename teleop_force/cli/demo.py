@@ -650,7 +650,9 @@ class DemoSupervisor:
     def _start_router(self, log: IO[bytes]) -> None:
         """Start the router on the rendezvous endpoint; wait until it accepts connections."""
         argv = _python_module("teleop_force.transport.router", "--listen", self.endpoint)
-        child = Child("router", argv, log, nice=self.config.realtime_nice)
+        # the network between the processes: as urgent as the loops it carries
+        priority = self.config.rt_priority + 1 if self.config.rt_priority else 0
+        child = Child("router", argv, log, nice=self.config.realtime_nice, rt_priority=priority)
         self.children.append(child)
         self.say(f"started router (pid {child.pid}) on {self.endpoint}")
         host, port = self.endpoint.removeprefix("tcp/").rsplit(":", 1)
