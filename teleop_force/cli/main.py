@@ -100,6 +100,19 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_export_json(args: argparse.Namespace) -> int:
+    from teleop_force.io.mcap_session import export_session_json
+
+    done = export_session_json(args.recording, args.output)
+    if args.json:
+        payload = {"source": str(done.source), "target": str(done.target),
+                   "messages": done.messages, "skipped": done.skipped}  # fmt: skip
+        print(json.dumps(payload))
+    else:
+        _log(f"{done.messages} messages written to {done.target} (JSON channels)")
+    return EXIT_OK
+
+
 def _cmd_estimate(args: argparse.Namespace) -> int:
     from teleop_force.estimation.batch import BatchEstimator
     from teleop_force.identification.dynamic_model import DynamicModel
@@ -386,6 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_robots(subparsers)
     _add_demo(subparsers)
     _add_replay(subparsers)
+    _add_export_json(subparsers)
     _add_bench(subparsers)
     _add_experiments(subparsers)
     _add_residual_blind(subparsers)
@@ -453,6 +467,16 @@ def _add_estimate(subparsers: _Subparsers) -> None:
     p.add_argument("data")
     _add_output(p, required=True)
     p.set_defaults(run=_cmd_estimate)
+
+
+def _add_export_json(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "export-json", help="rewrite a recorded session with JSON channels (the old layout)"
+    )
+    p.add_argument("recording", help="session .mcap (CDR or JSON, complete or truncated)")
+    _add_output(p, "JSON session .mcap to write", required=True)
+    _add_json_flag(p)
+    p.set_defaults(run=_cmd_export_json)
 
 
 def _add_residual(subparsers: _Subparsers) -> None:

@@ -144,3 +144,22 @@ def test_building_the_parser_does_not_import_the_residual_loop() -> None:
     residual, heavy = done.stdout.strip().splitlines()
     assert residual == "['teleop_force.residual', 'teleop_force.residual.options']"
     assert heavy == "[]"
+
+
+def test_export_json_rewrites_a_cdr_session_with_json_channels(tmp_path, capsys):
+    from teleop_force.io.mcap_session import SessionReader, SessionWriter
+    from teleop_force.transport import keys
+    from teleop_force.transport import messages as m
+
+    source, target = tmp_path / "cdr.mcap", tmp_path / "json.mcap"
+    with SessionWriter(source, {"primary_device": "slave"}) as writer:
+        for k in range(20):
+            js = m.JointState(k, 1000 + k, (0.1, 0.2, 0.3), (0.0,) * 3, (0.01 * k, 0.0, 0.0))
+            writer.write(keys.measured_js("slave"), js, 1000 + k)
+    assert main(["export-json", str(source), "-o", str(target), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["messages"] == 20 and out["skipped"] == 0
+    exported = list(SessionReader(target).messages())
+    original = list(SessionReader(source).messages())
+    assert exported == original
+    assert set(SessionReader(target).topics.values()) == {"teleop_force.JointState"}
