@@ -15,7 +15,9 @@ describes, so any MCAP reader (Foxglove, ``mcap`` CLI, the ``mcap`` Python reade
 Reading (:func:`scan_mcap`): one pass over the top-level records of a file's bytes, complete
 or truncated by a crash of its writer, listing schemas, channels, metadata, loose messages and
 chunks with the channels their message index records name; :func:`chunk_records` decompresses
-one chunk and checks its CRC; :func:`walk_chunk` lists the records inside one.
+one chunk and checks its CRC; :func:`walk_chunk` lists the records inside one;
+:func:`channel_records` locates the messages of one channel in a chunk with numpy (to copy them
+without a Python object each).
 """
 
 from __future__ import annotations
@@ -554,3 +556,77 @@ def walk_chunk(records: bytes) -> Iterator[tuple[int, int, int]]:
             raise ValueError("record cut short")
         yield opcode, body, length
         offset = body + length
+
+
+@dataclass(frozen=True)
+class ChannelRecords:
+    """The message records of one channel in a chunk's decompressed records, in record order.
+
+    Attributes:
+        log_time_ns: ``(K,)`` int64 log time of each message.
+        payload_offset: ``(K,)`` int64 offset of each message's data in the records.
+        payload_size: ``(K,)`` int64 byte length of each message's data.
+
+    """
+
+    log_time_ns: np.ndarray
+    payload_offset: np.ndarray
+    payload_size: np.ndarray
+
+    def __post_init__(self) -> None:
+        """Check the three arrays have one entry per message."""
+        count = self.log_time_ns.shape[0]
+        if self.payload_offset.shape != (count,) or self.payload_size.shape != (count,):
+            raise DataError("channel record arrays must have one entry per message")
+
+
+#: Offset of a message record's data after its record start (head, channel, seq, times).
+MESSAGE_DATA_OFFSET: Final = MESSAGE_HEAD.size
+
+
+def channel_records(records: bytes, channel_id: int, entries: np.ndarray) -> ChannelRecords:
+    """Locate the messages of ``channel_id`` in a chunk's ``records``, without a Python object each.
+
+    ``entries`` is the channel's message index (``(K, 2)`` log time, record offset). When the
+    index says the chunk holds only that channel's message records back to back (what
+    :class:`ChunkedMcapWriter` writes), the records are checked and located with numpy;
+    otherwise the chunk is walked record by record. Raise ValueError if it is corrupt.
+    """
+    count = entries.shape[0]
+    order = np.argsort(entries[:, 1], kind="stable")
+    starts = entries[order, 1].astype(np.int64)
+    size = len(records)
+    if count and int(starts[-1]) + MESSAGE_HEAD.size <= size and int(starts[0]) == 0:
+        raw = np.frombuffer(records, dtype=np.uint8)
+        head = raw[starts[:, None] + np.arange(MESSAGE_HEAD.size)]
+        fields = np.ascontiguousarray(head).view(_record_dtype(0)).reshape(-1)
+        lengths = fields["length"].astype(np.int64)
+        ends = starts + RECORD_HEAD.size + lengths
+        if (
+            (fields["opcode"] == Opcode.MESSAGE).all()
+            and (fields["channel"] == channel_id).all()
+            and (lengths >= MESSAGE_HEAD.size - RECORD_HEAD.size).all()
+            and np.array_equal(ends[:-1], starts[1:])
+            and int(ends[-1]) == size
+        ):
+            return ChannelRecords(
+                fields["log_time"].astype(np.int64),
+                starts + MESSAGE_HEAD.size,
+                ends - starts - MESSAGE_HEAD.size,
+            )
+    logs, offsets, sizes = [], [], []
+    for opcode, body, length in walk_chunk(records):
+        if opcode != Opcode.MESSAGE:
+            continue
+        if length < MESSAGE_FIELDS.size:
+            raise ValueError("message record cut short")
+        channel, _, log_time_ns, _ = MESSAGE_FIELDS.unpack_from(records, body)
+        if channel == channel_id:
+            logs.append(log_time_ns)
+            offsets.append(body + MESSAGE_FIELDS.size)
+            sizes.append(length - MESSAGE_FIELDS.size)
+    return ChannelRecords(
+        np.array(logs, dtype=np.uint64).astype(np.int64),
+        np.array(offsets, dtype=np.int64),
+        np.array(sizes, dtype=np.int64),
+    )

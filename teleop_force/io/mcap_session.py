@@ -22,7 +22,8 @@ message_encoding="json")`` writes it directly).
 Writing: :meth:`SessionWriter.write_payloads` records a batch of wire payloads, checked and
 converted to CDR with numpy per key (no Python object per message); a malformed payload (or
 one of another class than its key's first) is rejected and returned, the rest written.
-:meth:`SessionWriter.write` records one message object.
+:meth:`SessionWriter.write` records one message object. :meth:`SessionWriter.copy_from` copies
+the messages of some keys from another session, chunk by chunk (no Python object per message).
 
 Crash safety: data is written in zstd-compressed chunks (at most ``chunk_size_bytes``
 uncompressed, 1 MiB by default) straight to the operating system (no user-space buffer), and
@@ -40,6 +41,7 @@ from __future__ import annotations
 
 import heapq
 import io
+import itertools
 import json
 import os
 import struct
@@ -54,6 +56,7 @@ from types import TracebackType
 from typing import Any, Final, Self
 
 import numpy as np
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
@@ -65,6 +68,7 @@ from teleop_force.errors import (
     MessageError,
     TeleopForceError,
 )
+from teleop_force.io import cdr_chunks as mc
 from teleop_force.io import cdr_messages as cdr
 from teleop_force.io.cdr_chunks import COMPRESSIONS, ChunkedMcapWriter, DirectFile
 from teleop_force.io.cdr_columns import read_joint_state_arrays
@@ -83,12 +87,7 @@ MESSAGE_ENCODINGS: Final = tuple(FORMAT_VERSIONS)
 DEFAULT_CHUNK_SIZE_BYTES: Final = 1024 * 1024
 DEFAULT_FLUSH_INTERVAL_S: Final = 0.5
 
-_MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
-_RECORD_HEAD: Final = struct.Struct("<BQ")
 _MAX_RECORD_BYTES: Final = 1 << 30  # larger than any record this project writes: corrupt
-_PARSED_OPCODES: Final = frozenset(
-    (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA)
-)
 _MAX_LOG_TIME_NS: Final = 2**63  # log times are int64 nanoseconds since the epoch
 _MESSAGE_CLASSES: Final = tuple(msg.MESSAGE_CLASSES.values())
 
@@ -396,6 +395,147 @@ class SessionWriter:
         self._mcap.add_messages(channel.channel_id, result.cdr, result.seq, logs, publish)
         return True
 
+    # -- copying another recording
+
+    def copy_from(
+        self,
+        source: str | os.PathLike[str],
+        topics: Iterable[str],
+        *,
+        keep: Mapping[str, np.ndarray] | None = None,
+    ) -> CopiedMessages:
+        """Record the messages of ``topics`` from the session ``source``, with their log times.
+
+        Per topic, the messages are written in the order :meth:`SessionReader.messages`
+        yields them (log-time order, ties in file order), with the source's log times; each
+        one's ``seq`` and publish time are its own (as :meth:`write` records them).
+        ``keep`` maps a topic to a boolean mask over its messages in that order: the ``False``
+        ones are read, not written. A CDR session whose chunks hold one channel each (what
+        this writer writes) is copied chunk by chunk with numpy, each chunk decompressed
+        once; any other (JSON channels, chunks mixing channels, messages out of log-time
+        order) message by message. Raise DataError for an unreadable source, a ``keep`` mask
+        of another length than its topic's messages, or a write error.
+        """
+        source = Path(source)
+        wanted = list(dict.fromkeys(topics))
+        masks = dict(keep or {})
+        with self._lock:
+            self._check_open()
+        with mc.mapped_file(source) as data:
+            scan = mc.scan_mcap(data, source)
+            plan = _bulk_plan(data, scan, wanted, source)
+            if plan is not None:
+                return self._copy_chunks(data, plan, wanted, masks, source)
+        return self._copy_messages(SessionReader(source), wanted, masks)
+
+    def _copy_messages(
+        self, reader: SessionReader, topics: list[str], keep: dict[str, np.ndarray]
+    ) -> CopiedMessages:
+        """Copy message by message (any session)."""
+        counts = reader.message_counts
+        for topic, mask in keep.items():
+            self._check_mask(topic, mask, counts.get(topic, 0) if topic in topics else 0)
+        read = dict.fromkeys(topics, 0)
+        first: int | None = None
+        last: int | None = None
+        written = 0
+        for topic, log_time_ns, message in reader.messages(topics):
+            index = read[topic]
+            read[topic] += 1
+            first = log_time_ns if first is None else first
+            last = log_time_ns
+            kept = keep.get(topic)
+            if kept is not None and not kept[index]:
+                continue
+            if not isinstance(message, _MESSAGE_CLASSES):
+                raise DataError(f"cannot record {topic}: not a message", path=reader.path)
+            self.write(topic, message, log_time_ns)
+            written += 1
+        return CopiedMessages(read, written, first, last)
+
+    def _check_mask(self, topic: str, mask: np.ndarray, count: int) -> None:
+        if mask.dtype != np.bool_ or mask.shape != (count,):
+            raise DataError(
+                f"keep mask of {topic} must be ({count},) bool, got {mask.shape} {mask.dtype}",
+                path=self.path,
+            )
+
+    def _copy_chunks(
+        self,
+        data: mc.Buffer,
+        plan: dict[str, _TopicChunks],
+        topics: list[str],
+        keep: dict[str, np.ndarray],
+        source: Path,
+    ) -> CopiedMessages:
+        """Copy chunk by chunk (module docstring of :mod:`~teleop_force.io.cdr_chunks`)."""
+        read = dict.fromkeys(topics, 0)
+        for topic in topics:
+            count = sum(e.shape[0] for e in plan[topic].entries) if topic in plan else 0
+            read[topic] = count
+            if topic in keep:
+                self._check_mask(topic, keep[topic], count)
+        starts = [
+            (int(entries[0, 0]), n, k)
+            for n, topic in enumerate(topics)
+            if topic in plan
+            for k, entries in enumerate(plan[topic].entries)
+        ]
+        firsts = [int(e[0, 0]) for t in plan.values() for e in t.entries]
+        lasts = [int(e[-1, 0]) for t in plan.values() for e in t.entries]
+        done = dict.fromkeys(topics, 0)
+        decompressor = zstandard.ZstdDecompressor()
+        written = 0
+        for _, n, k in sorted(starts):
+            topic = topics[n]
+            chunks = plan[topic]
+            ref, entries = chunks.refs[k], chunks.entries[k]
+            records = mc.chunk_records(data, ref, source, decompressor)
+            try:
+                located = mc.channel_records(records, chunks.channel_id, entries)
+            except ValueError as exc:
+                raise DataError(f"corrupt chunk at byte {ref.offset}: {exc}", path=source) from None
+            if not np.array_equal(located.log_time_ns, entries[:, 0].astype(np.int64)):
+                raise DataError(f"chunk at byte {ref.offset} disagrees with its index", path=source)
+            rows = np.ones(located.log_time_ns.shape[0], dtype=bool)
+            if topic in keep:
+                rows = keep[topic][done[topic] : done[topic] + rows.shape[0]]
+            done[topic] += rows.shape[0]
+            written += self._add_located(topic, chunks.message_class, records, located, rows)
+        return CopiedMessages(read, written, min(firsts, default=None), max(lasts, default=None))
+
+    def _add_located(
+        self,
+        topic: str,
+        cls: type[msg.Message],
+        records: bytes,
+        located: mc.ChannelRecords,
+        rows: np.ndarray,
+    ) -> int:
+        """Write the ``rows`` of the located CDR messages, in runs of one size; return how many."""
+        logs = located.log_time_ns[rows]
+        offsets = located.payload_offset[rows]
+        sizes = located.payload_size[rows]
+        if logs.size == 0:
+            return 0
+        if int(logs.min()) < 0 or int(sizes.min()) < _CDR_STAMP_END:
+            raise DataError(f"bad message on {topic} (size or log time)", path=self.path)
+        raw = np.frombuffer(records, dtype=np.uint8)
+        bounds = [0, *(np.flatnonzero(np.diff(sizes)) + 1).tolist(), sizes.shape[0]]
+        with self._lock:
+            self._check_open()
+            channel = self._channel(topic, cls)
+            with self._io_errors():
+                for a, b in itertools.pairwise(bounds):
+                    size = int(sizes[a])
+                    block = _gather(raw, offsets[a:b], size)
+                    seq = np.ascontiguousarray(block[:, 4:8]).view("<u4").reshape(-1)
+                    t_ns = np.ascontiguousarray(block[:, 12:20]).view("<i8").reshape(-1)
+                    publish = np.where(t_ns >= 0, t_ns, logs[a:b])
+                    self._mcap.add_messages(channel.channel_id, block, seq, logs[a:b], publish)
+                self._flush_locked(due_only=True)
+        return int(logs.size)
+
     # -- flushing, closing
 
     def _flush_locked(self, *, due_only: bool, margin_s: float = 0.0) -> None:
@@ -458,6 +598,121 @@ def _io_errors(path: Path) -> Iterator[None]:
         raise DataError(f"cannot write file: {exc.strerror or exc}", path=path) from None
 
 
+#: Every CDR payload begins with its header (4), seq (4), padding (4), stamp ``t_ns`` (8).
+_CDR_STAMP_END: Final = 20
+
+
+@dataclass(frozen=True)
+class CopiedMessages:
+    """What :meth:`SessionWriter.copy_from` read and wrote.
+
+    Attributes:
+        read: Messages read per topic asked for.
+        written: Messages written.
+        first_log_time_ns: Earliest log time among those read (``None``: none read).
+        last_log_time_ns: Latest one.
+
+    """
+
+    read: dict[str, int]
+    written: int
+    first_log_time_ns: int | None
+    last_log_time_ns: int | None
+
+    def __post_init__(self) -> None:
+        """Check the counts."""
+        if self.written < 0 or any(count < 0 for count in self.read.values()):
+            raise DataError("message counts must be >= 0")
+        if self.written > sum(self.read.values()):
+            raise DataError("cannot write more messages than were read")
+
+
+@dataclass(frozen=True)
+class _TopicChunks:
+    """The chunks holding one topic's messages, and their message indexes, in file order."""
+
+    channel_id: int
+    message_class: type[msg.Message]
+    refs: list[mc.ChunkRef]
+    entries: list[np.ndarray]  # (K, 2) uint64 log time, offset; sorted by offset
+
+
+def _bulk_plan(
+    data: mc.Buffer, scan: mc.McapScan, topics: list[str], path: Path
+) -> dict[str, _TopicChunks] | None:
+    """Return where each of ``topics`` is in a CDR session of one-channel chunks, else None.
+
+    None: the copy must go message by message (a topic on several channels or not in CDR,
+    a message outside chunks, a chunk without complete message indexes or holding several
+    channels one of which is asked for, messages out of log-time order).
+    """
+    found = scan.metadata.get(METADATA_NAME, {}).get("format", FORMAT_NAME)
+    if found != FORMAT_NAME:
+        raise DataError(f"not a teleop-force session (format {found!r})", path=path)
+    by_id: dict[int, str] = {}
+    plan: dict[str, _TopicChunks] = {}
+    wanted = set(topics)
+    for channel in scan.channels.values():
+        if channel.topic not in wanted:
+            continue
+        schema = scan.schemas.get(channel.schema_id)
+        cls = None
+        if schema is not None and schema.encoding == cdr.SCHEMA_ENCODING:
+            cls = cdr.MESSAGE_CLASSES_BY_CDR_SCHEMA.get(schema.name)
+        if cls is None or channel.message_encoding != cdr.MESSAGE_ENCODING:
+            return None
+        if channel.topic in plan:
+            return None
+        by_id[channel.id] = channel.topic
+        plan[channel.topic] = _TopicChunks(channel.id, cls, [], [])
+    for _, body, _ in scan.loose:
+        if mc.MESSAGE_FIELDS.unpack_from(data, body)[0] in by_id:
+            return None
+    for ref in scan.chunks:
+        ids = set(ref.index)
+        if not (ref.index_complete and ids and ids <= set(scan.channels)):
+            return None
+        asked = ids & set(by_id)
+        if not asked:
+            continue
+        if len(ids) > 1:
+            return None
+        (channel_id,) = asked
+        try:
+            entries = mc.index_entries(data, *ref.index[channel_id])
+        except (ValueError, struct.error) as exc:
+            problem = f"corrupt message index at byte {ref.offset}: {exc}"
+            raise DataError(problem, path=path) from None
+        if entries.shape[0] == 0:
+            continue
+        entries = entries[np.argsort(entries[:, 1], kind="stable")]
+        plan[by_id[channel_id]].refs.append(ref)
+        plan[by_id[channel_id]].entries.append(entries)
+    for chunks in plan.values():
+        if chunks.entries:
+            logs = np.concatenate([e[:, 0] for e in chunks.entries])
+            if (logs[1:] < logs[:-1]).any() or int(logs.max()) >= _MAX_LOG_TIME_NS:
+                return None
+    return {topic: chunks for topic, chunks in plan.items() if chunks.entries}
+
+
+def _gather(raw: np.ndarray, offsets: np.ndarray, size: int) -> np.ndarray:
+    """Return the ``(K, size)`` bytes at ``offsets`` of ``raw`` (a strided view if regular)."""
+    count = offsets.shape[0]
+    if count > 1:
+        steps = np.diff(offsets)
+        step = int(steps[0])
+        regular = step >= size and bool((steps == step).all())
+    else:
+        step, regular = size, True
+    start = int(offsets[0])
+    if regular:
+        return np.lib.stride_tricks.as_strided(
+            raw[start:], shape=(count, size), strides=(step, 1), writeable=False
+        )
+    return raw[offsets[:, None] + np.arange(size)]
+
+
 # --------------------------------------------------------------------------- reading
 
 
@@ -480,8 +735,10 @@ class _Loose:
 class SessionReader:
     """Read a session MCAP file, complete or truncated by a crash of its writer.
 
-    Opening scans the whole file once (checking chunk CRCs) and raises DataError naming the
-    file for anything that is not a readable MCAP. Iterating yields ``(topic, log_time_ns,
+    Opening lists the file's records and raises DataError naming the file for anything that
+    is not a readable MCAP; a chunk with complete message indexes is not decompressed then
+    (its counts come from the indexes, its CRC is checked when it is read), so opening
+    costs little more than reading the schemas and indexes. Iterating yields ``(topic, log_time_ns,
     message)`` in log-time order (equal log times: in file order), decompressing one chunk at a
     time; ``message`` is a :mod:`teleop_force.transport.messages` object for this project's
     schemas (CDR ``teleop_force/msg/...`` or, in recordings made before the CDR encoding, JSON
@@ -507,44 +764,62 @@ class SessionReader:
         return DataError(problem, path=self.path)
 
     def _scan(self) -> None:
-        try:
-            f = open(self.path, "rb")  # noqa: SIM115 - closed below
-        except IsADirectoryError:
-            raise self._error("is a directory, not an MCAP file") from None
-        except OSError as exc:
-            raise self._error(f"cannot read file: {exc.strerror or exc}") from None
-        with f:
-            size = os.fstat(f.fileno()).st_size
-            if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-                raise self._error("not an MCAP file (bad magic)")
-            offset = len(_MCAP_MAGIC)
-            order = 0
-            while offset + _RECORD_HEAD.size <= size:
-                opcode, length = _RECORD_HEAD.unpack(f.read(_RECORD_HEAD.size))
-                body_offset = offset + _RECORD_HEAD.size
-                if body_offset + length > size:
-                    break  # the writer died while writing this record
-                if length > _MAX_RECORD_BYTES:
-                    raise self._error(f"corrupt record at byte {offset}: length {length}")
-                if opcode == Opcode.FOOTER:
-                    self.truncated = False
-                    break
-                if opcode in _PARSED_OPCODES:
-                    body = f.read(length)
-                    try:
-                        self._record(opcode, body, body_offset, order)
-                    except DataError:
-                        raise
-                    except Exception as exc:  # any parse failure means a corrupt file
-                        raise self._error(
-                            f"corrupt MCAP record (opcode {opcode:#04x}) at byte {offset}: {exc}"
-                        ) from None
-                    order += 1
-                else:
-                    f.seek(length, io.SEEK_CUR)
-                offset = body_offset + length
+        """List the file's records: a chunk whose message indexes are complete is not read.
+
+        Its message counts and earliest log time come from its message index records; its
+        CRC is checked when it is read (iterating). Other chunks (no or partial index: the
+        last chunk of a crashed recording, other writers) are decompressed and parsed now.
+        """
+        with mc.mapped_file(self.path) as data:
+            scan = mc.scan_mcap(data, self.path)
+            self.truncated = scan.truncated
+            self.metadata.update(scan.metadata.get(METADATA_NAME, {}))
+            for schema in scan.schemas.values():
+                self._add_schema(schema)
+            for channel in scan.channels.values():
+                self._add_channel(channel)
+            for ref in scan.chunks:
+                self._scan_chunk(data, ref)
+            for order, body, length in scan.loose:
+                try:
+                    record = Message.read(
+                        ReadDataStream(io.BytesIO(data[body : body + length])), length
+                    )
+                except Exception as exc:  # any parse failure means a corrupt file
+                    problem = f"corrupt MCAP message record at byte {body}: {exc}"
+                    raise self._error(problem) from None
+                self._check_channel(record.channel_id)
+                self._counts[record.channel_id] = self._counts.get(record.channel_id, 0) + 1
+                self._loose.append(_Loose(order, record))
         if self.metadata.get("format", FORMAT_NAME) != FORMAT_NAME:
             raise self._error(f"not a teleop-force session (format {self.metadata['format']!r})")
+
+    def _scan_chunk(self, data: mc.Buffer, ref: mc.ChunkRef) -> None:
+        ids = set(ref.index)
+        if ref.index_complete and ids and ids <= set(self._channels):
+            counts: dict[int, int] = {}
+            start_ns: int | None = None
+            for channel_id, (body, length) in ref.index.items():
+                try:
+                    entries = mc.index_entries(data, body, length)
+                except (ValueError, struct.error) as exc:
+                    raise self._error(f"corrupt message index at byte {body}: {exc}") from None
+                if entries.shape[0]:
+                    counts[channel_id] = entries.shape[0]
+                    first = int(entries[:, 0].min())
+                    start_ns = first if start_ns is None else min(start_ns, first)
+            if start_ns is not None:
+                for channel_id, count in counts.items():
+                    self._counts[channel_id] = self._counts.get(channel_id, 0) + count
+                self._chunks.append(_ChunkRef(ref.order, ref.offset, ref.length, start_ns))
+            return
+        chunk = bytes(data[ref.offset : ref.offset + ref.length])
+        try:
+            self._record(Opcode.CHUNK, chunk, ref.offset, ref.order)
+        except DataError:
+            raise
+        except Exception as exc:  # any parse failure means a corrupt file
+            raise self._error(f"corrupt chunk at byte {ref.offset}: {exc}") from None
 
     def _record(self, opcode: int, body: bytes, body_offset: int, order: int) -> None:
         stream = ReadDataStream(io.BytesIO(body))

@@ -154,7 +154,7 @@ def reestimate_session(
         metadata["master_device"] = master
     estimate_key = keys.estimated_cf(device)
     with SessionWriter(target, metadata) as writer:
-        replayed, first_log, last_log, written = _copy_replayed(
+        replayed, first_log, last_log, written = _copy(
             reader, writer, topics, js_key, run.plausible
         )
         written += _write_estimates(writer, estimate_key, run, arrays.seq, arrays.log_time_ns)
@@ -166,6 +166,23 @@ def reestimate_session(
     )
 
 
+def _copy(
+    reader: SessionReader,
+    writer: SessionWriter,
+    topics: list[str],
+    js_key: str,
+    recorded: np.ndarray,
+) -> tuple[dict[str, int], int | None, int | None, int]:
+    """Copy the replayed messages to ``writer`` (of ``js_key`` only the ``recorded`` ones).
+
+    Chunk by chunk (:meth:`SessionWriter.copy_from`): the messages :func:`_copy_replayed`
+    writes, without a Python object per message. Return the messages read per topic, the
+    first and last log time and the messages written.
+    """
+    copied = writer.copy_from(reader.path, topics, keep={js_key: recorded})
+    return copied.read, copied.first_log_time_ns, copied.last_log_time_ns, copied.written
+
+
 def _copy_replayed(
     reader: SessionReader,
     writer: SessionWriter,
@@ -175,7 +192,8 @@ def _copy_replayed(
 ) -> tuple[dict[str, int], int | None, int | None, int]:
     """Copy the replayed messages to ``writer`` (of ``js_key`` only the ``recorded`` ones).
 
-    Return the messages read per topic, the first and last log time and the messages written.
+    Message by message (the reference :func:`_copy` is checked against). Return the messages
+    read per topic, the first and last log time and the messages written.
     """
     replayed = dict.fromkeys(topics, 0)
     first_log: int | None = None
@@ -341,30 +359,50 @@ def _write_estimates(
     ``seq`` counts the estimates published, ``source_seq`` is the joint state's, and the
     publish time ``t_ns`` (and log time) is the joint state's recorded log time.
     """
-    est = run.estimates
-    n = est.tau_external_nm.shape[1]
     rows = np.flatnonzero(run.published)
-    values = np.concatenate(
-        (est.force_tip_in_base_n[rows], est.tau_external_nm[rows], est.coverage_weight[rows],
-         est.tau_motor_filtered_nm[rows], est.tau_model_filtered_nm[rows]),
-        axis=1,
-    ).tolist()  # fmt: skip
-    masks = (est.on_trained_ground[rows] * (1 << np.arange(n))).sum(axis=1).tolist()
-    sources = seq[run.estimated[rows]].tolist()
-    logs = log_time_ns[run.estimated[rows]].tolist()
-    pack = m.pack_force_estimate
-    payloads = [
-        pack(count & SEQ_MASK, log, source, n, row, mask)
-        for count, (log, source, row, mask) in enumerate(
-            zip(logs, sources, values, masks, strict=True)
-        )
-    ]
+    sources = seq[run.estimated[rows]]
+    logs = log_time_ns[run.estimated[rows]]
+    payloads = _estimate_payloads(run.estimates, rows, sources, logs)
+    logs_list = logs.tolist()
     written = 0
     for start in range(0, len(payloads), _WRITE_BATCH):
         stop = start + _WRITE_BATCH
         part = payloads[start:stop]
-        written += _write(writer, [key] * len(part), part, logs[start:stop])
+        written += _write(writer, [key] * len(part), part, logs_list[start:stop])
     return written
+
+
+def _estimate_payloads(
+    est: BatchEstimates, rows: np.ndarray, source_seq: np.ndarray, t_ns: np.ndarray
+) -> list[bytes]:
+    """Return the wire ForceEstimate of each of ``rows`` of ``est``, built with numpy.
+
+    The bytes of :func:`~teleop_force.transport.messages.pack_force_estimate` (``seq``
+    counting from 0, ``t_ns`` and ``source_seq`` given per row), without a call per row.
+    """
+    n = est.tau_external_nm.shape[1]
+    layout = np.dtype(
+        [("magic", "S2"), ("version", "u1"), ("type", "u1"), ("seq", "<u4"), ("t_ns", "<i8"),
+         ("source_seq", "<u4"), ("n", "u1"), ("values", "<f8", (3 + 4 * n,)),
+         ("mask", "u1", ((n + 7) // 8,))]
+    )  # fmt: skip
+    block = np.empty(rows.size, dtype=layout)
+    block["magic"] = m.MAGIC
+    block["version"] = m.VERSION
+    block["type"] = int(m.MessageType.FORCE_ESTIMATE)
+    block["seq"] = np.arange(rows.size, dtype=np.int64) & SEQ_MASK
+    block["t_ns"] = t_ns
+    block["source_seq"] = source_seq
+    block["n"] = n
+    block["values"] = np.concatenate(
+        (est.force_tip_in_base_n[rows], est.tau_external_nm[rows], est.coverage_weight[rows],
+         est.tau_motor_filtered_nm[rows], est.tau_model_filtered_nm[rows]),
+        axis=1,
+    )  # fmt: skip
+    block["mask"] = np.packbits(est.on_trained_ground[rows], axis=1, bitorder="little")
+    raw = block.tobytes()
+    width = layout.itemsize
+    return [raw[i : i + width] for i in range(0, len(raw), width)]
 
 
 def _service_stats(
