@@ -37,6 +37,7 @@ import lz4.frame
 import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
@@ -487,9 +488,11 @@ def scan_mcap(data: Buffer, path: Path) -> McapScan:
                     else:
                         record = Metadata.read(stream)
                         scan.metadata.setdefault(record.name, {}).update(record.metadata)
-            except (struct.error, ValueError, UnicodeDecodeError) as exc:
+            except (struct.error, ValueError, UnicodeDecodeError, McapError) as exc:
+                # McapError: a record shorter than its fields (mcap's EndOfFile)
                 raise DataError(
-                    f"corrupt MCAP record (opcode {opcode:#04x}) at byte {offset}: {exc}",
+                    f"corrupt MCAP record (opcode {opcode:#04x}) at byte {offset}: "
+                    f"{exc or type(exc).__name__}",
                     path=path,
                 ) from None
         order += 1
