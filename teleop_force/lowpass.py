@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from teleop_force.errors import ConfigurationError, DataError
 
@@ -92,6 +91,8 @@ def lowpass_batch(
     if x.shape[0] != dt.shape[0]:
         raise DataError(f"signal has {x.shape[0]} samples, time has {dt.shape[0]}")
     if _is_uniform(dt):
+        from scipy.signal import lfilter  # lazy: scipy.signal costs ~0.4 s to import
+
         a = smoothing_factor(cutoff_hz, float(dt[1]))
         zi = a * x[0:1]
         y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=0, zi=zi)

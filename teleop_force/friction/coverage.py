@@ -26,7 +26,6 @@ from typing import Annotated, Any
 
 import numpy as np
 from msgspec import Meta, Struct
-from scipy.ndimage import gaussian_filter
 
 from teleop_force.errors import ConfigurationError, DataError, ModelFileError
 from teleop_force.friction.base import JointIndex
@@ -97,6 +96,8 @@ class CoverageConfig:
 def smoothed_density(counts: np.ndarray, smoothing_cells: float) -> np.ndarray:
     """Smooth a grid's samples per cell by a Gaussian of ``smoothing_cells`` cells (0: none)."""
     if smoothing_cells > 0:
+        from scipy.ndimage import gaussian_filter  # lazy: scipy.ndimage is slow to import
+
         return gaussian_filter(counts, smoothing_cells, mode="constant")
     return counts
 

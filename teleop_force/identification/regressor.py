@@ -24,7 +24,6 @@ from typing import Annotated, cast
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg
 from msgspec import Meta, Struct
 
 from teleop_force.errors import ModelError, ModelFileError
@@ -364,6 +363,8 @@ class RigidBodyRegressor:
 
     def find_base_parameters(self, n_states: int = 200, seed: int = 0) -> BaseParameters:
         """Find the base parameters numerically: QR with pivoting of ``Y`` on random states."""
+        import scipy.linalg  # lazy: only identification needs it, not estimation
+
         rng = np.random.default_rng(seed)
         desc = self.description
         rows = []

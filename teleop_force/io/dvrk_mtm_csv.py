@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
 from teleop_force.errors import DataError
 from teleop_force.io.interchange_csv import Recording
@@ -160,6 +159,8 @@ def read_mtm_csv(
 
 def _zero_phase(cutoff_hz: float) -> Callable[[np.ndarray], np.ndarray]:
     """4th-order Butterworth low-pass at ``cutoff_hz`` run forward and backward, per column."""
+    from scipy.signal import butter, filtfilt  # lazy: scipy.signal is slow to import
+
     b, a = butter(_SMOOTHING_ORDER, cutoff_hz / (SAMPLE_RATE_HZ / 2))
 
     def low(x: np.ndarray) -> np.ndarray:

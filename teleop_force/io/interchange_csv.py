@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
+import msgspec
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -238,6 +239,42 @@ def _check_cell_counts(body: str, n_columns: int, path: Path) -> int:
     return int(line_ends.size)
 
 
+def _parse_fast(body: str, n_columns: int, columns: list[int]) -> NDArray[np.float64] | None:
+    """Parse the data rows as JSON arrays of ``n_columns`` floats; ``None`` if that fails.
+
+    Several times faster than the cell count check plus loadtxt, and exact (msgspec rounds
+    decimal text correctly). The fixed-length row type also checks every row's cell count.
+    Anything else (ragged or empty rows, cells JSON does not accept such as ``nan``, ``+1``,
+    ``1.`` or blanks) sends the caller to the slow path, which either parses the file or
+    reports the bad row and cell.
+    """
+    row_type = tuple.__class_getitem__((float,) * n_columns)  # tuple[float, ..., float]
+    decoder = msgspec.json.Decoder(list.__class_getitem__(row_type))
+    try:
+        rows = decoder.decode("[[" + body.replace("\n", "],[") + "]]")
+    except (msgspec.DecodeError, ValueError):
+        return None
+    return np.array(rows, dtype=np.float64)[:, columns]
+
+
+def _parse_loadtxt(
+    body: str, columns: list[int], names: list[str], path: Path
+) -> NDArray[np.float64]:
+    """Parse the data rows with numpy's loadtxt; raise DataError naming the first bad cell."""
+    try:
+        return np.loadtxt(
+            io.StringIO(body),
+            delimiter=",",
+            usecols=columns,
+            dtype=np.float64,
+            comments=None,
+            ndmin=2,
+        )
+    except ValueError as exc:
+        lines = body.split("\n")
+        raise _locate_bad_cell(lines, columns, names, path, str(exc)) from None
+
+
 def read_interchange_csv(path: str | os.PathLike[str], n_joints: int | None = None) -> Recording:
     """Read an interchange CSV file; raise DataError naming the file, row and column.
 
@@ -261,19 +298,12 @@ def read_interchange_csv(path: str | os.PathLike[str], n_joints: int | None = No
     if not newline:
         raise DataError("no data rows after the header", path=path, row=2)
 
-    n_rows = _check_cell_counts(body, len(header), path)
-    try:
-        table = np.loadtxt(
-            io.StringIO(body),
-            delimiter=",",
-            usecols=columns,
-            dtype=np.float64,
-            comments=None,
-            ndmin=2,
-        )
-    except ValueError as exc:
-        lines = body.split("\n")
-        raise _locate_bad_cell(lines, columns, names, path, str(exc)) from None
+    table = _parse_fast(body, len(header), columns)
+    if table is not None:
+        n_rows = table.shape[0]
+    else:
+        n_rows = _check_cell_counts(body, len(header), path)
+        table = _parse_loadtxt(body, columns, names, path)
     if table.shape != (n_rows, len(columns)):  # pragma: no cover - guarded by the cell count
         raise DataError(f"expected {n_rows} data rows, parsed {table.shape[0]}", path=path)
 

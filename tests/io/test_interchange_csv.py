@@ -256,3 +256,55 @@ def test_240k_rows_read_quickly(tmp_path):
     elapsed = time.perf_counter() - start
     assert back.n_samples == 240_000
     assert elapsed < 5.0, f"reading 240k rows took {elapsed:.2f} s"
+
+
+def _cells_as_floats(text):
+    """Each data cell parsed by Python's float(), which rounds decimal text correctly."""
+    rows = text.rstrip("\n").split("\n")[1:]
+    return np.array([[float(c) for c in row.split(",")] for row in rows])
+
+
+def test_many_digit_cells_read_bit_exact(tmp_path):
+    rng = np.random.default_rng(7)
+    n_rows = 400
+    cells = []
+    for i in range(n_rows):
+        t = f"{i}.{rng.integers(10**17, 10**18)}e-3"  # 18+ digits, more than a float holds
+        digits = [
+            f"{rng.normal():.40f}",
+            f"{rng.normal() * 1e-300:.25e}",
+            str(int(rng.integers(0, 2**62)) * 10**12),  # big integer, not exact in float64
+            f"-{rng.uniform():.17g}E+{int(rng.integers(0, 300))}",
+        ]
+        cells.append(",".join([t, *digits]))
+    text = "t,q1,q2,tau1,tau2\n" + "\n".join(cells) + "\n"
+    expected = _cells_as_floats(text)
+    rec = read_interchange_csv(write_text(tmp_path, text))
+    got = np.column_stack([rec.t_s, rec.q_rad, rec.tau_nm])
+    assert got.tobytes() == expected.tobytes()
+
+
+def test_cells_json_rejects_still_parse_like_loadtxt(tmp_path):
+    # "+1", "1.", ".5", "1e5", " 2 " and "007" are not JSON numbers: the slow path reads them.
+    text = "t,q1,tau1,extra\n0.0,+1,1.,x\n.5, 2 ,007,y\n1e5,-0,3,z\n"
+    rec = read_interchange_csv(write_text(tmp_path, text))
+    np.testing.assert_array_equal(rec.t_s, [0.0, 0.5, 1e5])
+    np.testing.assert_array_equal(rec.q_rad[:, 0], [1.0, 2.0, -0.0])
+    np.testing.assert_array_equal(rec.tau_nm[:, 0], [1.0, 7.0, 3.0])
+
+
+def test_bad_cell_after_many_good_rows_is_located(tmp_path):
+    rows = [f"{i * 1e-3!r},1.5,2.5" for i in range(2000)]
+    rows[1500] = f"{1500 * 1e-3!r},1.5,abc"
+    path = write_text(tmp_path, "t,q1,tau1\n" + "\n".join(rows) + "\n")
+    err = error_of(path)
+    assert "row 1502" in str(err)
+    assert "tau1" in str(err)
+    assert "'abc'" in str(err)
+
+
+def test_out_of_range_cell_reported_not_finite(tmp_path):
+    path = write_text(tmp_path, "t,q1,tau1\n0.0,1,2\n0.001,1e400,2\n")
+    err = error_of(path)
+    assert "row 3" in str(err)
+    assert "q1" in str(err)
