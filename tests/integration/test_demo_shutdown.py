@@ -50,7 +50,7 @@ def wait_until_up(process: subprocess.Popen) -> tuple[list[str], list[int]]:
             break
     assert any("all processes up" in line for line in lines), "".join(lines)
     pids = [int(line.split("pid ")[1].rstrip(")\n")) for line in lines if "(pid " in line]
-    assert len(pids) == 3, "".join(lines)
+    assert len(pids) == 4, "".join(lines)  # recorder, service, slave, master
     return lines, pids
 
 
@@ -60,7 +60,7 @@ def test_demo_runs_for_its_duration_and_leaves_nothing(tmp_path):
     assert process.returncode == 0, out
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["ok"], out
-    assert set(summary["pids"]) == {"service", "slave", "master"}
+    assert set(summary["pids"]) == {"recorder", "service", "slave", "master"}
     assert not [name for name, pid in summary["pids"].items() if alive(pid)]
     assert "== demo summary ==" in out and "messages lost:" in out
     assert "dashboard: not started (--headless)" in out
@@ -78,7 +78,7 @@ def test_demo_runs_for_its_duration_and_leaves_nothing(tmp_path):
         print(f"{name} loop: {loop}")
     assert summary["slave_holds"] is not None
     cpu = summary["cpu_percent"]
-    assert set(cpu) == {"service", "slave", "master", "supervisor", "total"}
+    assert set(cpu) == {"recorder", "service", "slave", "master", "supervisor", "total"}
     assert cpu["total"] == pytest.approx(sum(v for k, v in cpu.items() if k != "total"), abs=0.2)
     assert summary["cpu_percent_of_one_core"] == cpu
     assert (

@@ -206,9 +206,10 @@ def test_replay_reproduces_the_live_estimates_exactly(live):
     # SIGINT / SIGTERM handlers, which are put back afterwards.
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        code = cli.main(
-            ["replay", str(live["record"]), "--fast", "--with-service", "--record", str(replayed)]
-        )
+        code = cli.main([
+            "replay", str(live["record"]), "--fast", "--with-service", "--over-zenoh",
+            "--record", str(replayed),
+        ])  # fmt: skip
     finally:
         for signum, handler in handlers.items():
             signal.signal(signum, handler)
