@@ -84,7 +84,7 @@ def test_demo_runs_for_its_duration_and_leaves_nothing(tmp_path):
     assert (
         len(summary["machine_load_average"]) == len(summary["machine_load_average_at_start"]) == 3
     )
-    assert set(summary["scheduling"]) == {"service", "slave", "master"}
+    assert set(summary["scheduling"]) == {"recorder", "service", "slave", "master"}
     print(f"CPU {cpu}, scheduling {summary['scheduling']}")
     assert "slave loop:" in out and "master loop:" in out and "slave holds:" in out
 
