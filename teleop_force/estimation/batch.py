@@ -40,7 +40,11 @@ import pinocchio as pin
 
 from teleop_force.compiled import njit_cached
 from teleop_force.errors import DataError
-from teleop_force.estimation.estimator import DEFAULT_SIGMA_MIN, TRAINED_GROUND_WEIGHT
+from teleop_force.estimation.estimator import (
+    DEFAULT_SIGMA_MIN,
+    TRAINED_GROUND_WEIGHT,
+    equivalent_rigid_body,
+)
 from teleop_force.estimation.kernels import ModelTerms, add_model_terms
 from teleop_force.estimation.rigid_chain import (
     ChainTables,
@@ -50,7 +54,6 @@ from teleop_force.estimation.rigid_chain import (
 )
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.least_squares import relative_rms
-from teleop_force.identification.regressor import full_parameters
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.robots.description import Robot
 
@@ -349,26 +352,6 @@ def evaluate_recordings(
         "measured": m,
         "estimated": e,
     }
-
-
-def equivalent_rigid_body(model: DynamicModel) -> tuple[Robot | None, np.ndarray]:
-    """Return the robot whose full parameters represent the model's base ones, and its springs.
-
-    As :class:`~teleop_force.estimation.estimator.ForceEstimator` builds it: ``None`` (and no
-    springs) for a model without rigid-body terms.
-    """
-    description = model.description()
-    if not (description.has_rigid_body and model.base is not None):
-        return None, np.zeros(len(description.springs))
-    n = model.n_joints
-    nominal = full_parameters(description, np.zeros(len(description.springs)))
-    n_links = 10 * description.n_links
-    # pinocchio's composite inertias need positive subtree masses
-    full = model.base.representative_with_masses(model.base_values, nominal, range(0, n_links, 10))
-    equivalent = description.with_link_parameters(full[:n_links]).with_rotor_inertia(
-        full[n_links : n_links + n]
-    )
-    return Robot(equivalent), full[n_links + n :]
 
 
 def _threads() -> int:

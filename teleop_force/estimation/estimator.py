@@ -92,6 +92,26 @@ class ForceEstimate:
     singular: bool
 
 
+def equivalent_rigid_body(model: DynamicModel) -> tuple[Robot | None, np.ndarray]:
+    """Return the robot whose full parameters represent the model's base ones, and its springs.
+
+    What :class:`ForceEstimator` and the batch form run: ``None`` (and no springs) for a model
+    without rigid-body terms.
+    """
+    description = model.description()
+    if not (description.has_rigid_body and model.base is not None):
+        return None, np.zeros(len(description.springs))
+    n = model.n_joints
+    nominal = full_parameters(description, np.zeros(len(description.springs)))
+    n_links = 10 * description.n_links
+    # pinocchio's composite inertias need positive subtree masses
+    full = model.base.representative_with_masses(model.base_values, nominal, range(0, n_links, 10))
+    equivalent = description.with_link_parameters(full[:n_links]).with_rotor_inertia(
+        full[n_links : n_links + n]
+    )
+    return Robot(equivalent), full[n_links + n :]
+
+
 class _PinocchioTerms:
     """The pinocchio model and data of the equivalent rigid body, and the tip frame."""
 
@@ -108,23 +128,9 @@ class ForceEstimator:
     def __init__(self, model: DynamicModel, sigma_min: float = DEFAULT_SIGMA_MIN) -> None:
         """Build the equivalent rigid-body model and the filters."""
         self.model = model
-        description = model.description()
         self.n = model.n_joints
         self.sigma_min = sigma_min
-        self.robot: Robot | None = None
-        self.spring_stiffness = np.zeros(len(description.springs))
-        if description.has_rigid_body and model.base is not None:
-            nominal = full_parameters(description, np.zeros(len(description.springs)))
-            n_links = 10 * description.n_links
-            # pinocchio's composite inertias need positive subtree masses
-            full = model.base.representative_with_masses(
-                model.base_values, nominal, range(0, n_links, 10)
-            )
-            equivalent = description.with_link_parameters(full[:n_links]).with_rotor_inertia(
-                full[n_links : n_links + self.n]
-            )
-            self.spring_stiffness = full[n_links + self.n :]
-            self.robot = Robot(equivalent)
+        self.robot, self.spring_stiffness = equivalent_rigid_body(model)
         self._rigid = None if self.robot is None else _PinocchioTerms(self.robot)
         self._has_tip = self.robot is not None and self.robot.description.tip_frame is not None
         #: whether the compiled step computes ``F`` (three joints); else :class:`Robot` does

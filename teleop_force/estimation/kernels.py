@@ -126,34 +126,6 @@ def add_model_terms(
     add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
 
 
-@njit_cached()
-def model_terms_into(
-    io: np.ndarray,
-    n: int,
-    mode: int,
-    offsets: np.ndarray,
-    linear_table: np.ndarray,
-    linear_parameters: np.ndarray,
-    wavelet_inputs: np.ndarray,
-    wavelet_table: np.ndarray,
-    wavelet_runs: np.ndarray,
-    wavelet_psi: np.ndarray,
-    grid_ints: np.ndarray,
-    grid_floats: np.ndarray,
-    grid_values: np.ndarray,
-    effect_codes: np.ndarray,
-    effect_floats: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """:func:`add_model_terms` on ``io``: ``[t, q, qd, load]`` in, ``[other, weight]`` out."""
-    add_model_terms(
-        io[0], io[1 : 1 + n], io[1 + n : 1 + 2 * n], io[1 + 2 * n : 1 + 3 * n],
-        io[1 + 3 * n : 1 + 4 * n], io[1 + 4 * n : 1 + 5 * n], io[1 + 5 * n : 1 + 6 * n],
-        io[1 + 6 * n :], mode, offsets, linear_table, linear_parameters, wavelet_inputs,
-        wavelet_table, wavelet_runs, wavelet_psi, grid_ints, grid_floats, grid_values,
-        effect_codes, effect_floats,
-    )  # fmt: skip
-
-
 class _CoverageGrids:
     """A :class:`CoverageMap` as the grid table of :func:`coverage_trust_into`, kept current."""
 
@@ -310,7 +282,11 @@ class ModelTerms:
         n = self.n
         io = self._io
         io[: 1 + 3 * n] = [t, *q, *qd, *load]
-        model_terms_into(io, n, *self.arguments())
+        add_model_terms(
+            t, io[1 : 1 + n], io[1 + n : 1 + 2 * n], io[1 + 2 * n : 1 + 3 * n],
+            io[1 + 3 * n : 1 + 4 * n], io[1 + 4 * n : 1 + 5 * n], io[1 + 5 * n : 1 + 6 * n],
+            io[1 + 6 * n :], *self.arguments(),
+        )  # fmt: skip
         out = io[self._out].tolist()
         other, weight = out[:n], out[n:]
         if self.python_friction:
