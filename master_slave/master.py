@@ -47,7 +47,6 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
-from master_slave.wire_pack import pack_joint_setpoint, pack_joint_state, unpack_force_estimate
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -59,6 +58,7 @@ from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
+from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_data_publisher,
     declare_json_queryable,
@@ -73,6 +73,8 @@ from teleop_force.transport.session import ZenohOptions, open_session, options_f
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
 
 ROLE = "master"
+#: Joints of the Omni: an estimate for another count is malformed.
+JOINTS = 3
 SEQ_MASK = 0xFFFF_FFFF
 #: The hand and the motors together may exceed one motor's limit (the hand is not a motor).
 HAND_PLUS_MOTOR_LIMIT_NM = 3.0
@@ -133,7 +135,7 @@ class FeedbackInbox:
         """Zenoh callback: keep the newest estimate."""
         arrival_ns = time.time_ns()
         try:
-            seq, t_ns, _source_seq, f_n = unpack_force_estimate(sample.payload.to_bytes())
+            seq, t_ns, _source_seq, f_n = m.unpack_force_estimate(sample.payload.to_bytes(), JOINTS)
         except MessageError:
             with self._lock:
                 self.malformed += 1
@@ -293,7 +295,7 @@ class MasterProcess:
             q = plant.read().q_rad
             stamp_ns = time_ns()  # when the pose was read, as a real driver would stamp it
             q_floats = q.tolist()
-            setpoint = pack_joint_setpoint(seq, stamp_ns, q_floats)
+            setpoint = m.pack_joint_setpoint(seq, stamp_ns, q_floats)
             put_started_s = perf_counter()
             put(sp_pub, setpoint)
             put_time.add(perf_counter() - put_started_s)
@@ -309,7 +311,7 @@ class MasterProcess:
             plant.command_torque(tau_hand)
             put(
                 js_pub,
-                pack_joint_state(seq, stamp_ns, q_floats, hand.velocity_rad_s.tolist(), motor),
+                m.pack_joint_state(seq, stamp_ns, q_floats, hand.velocity_rad_s.tolist(), motor),
             )
             self.published += 1
             plant.step()

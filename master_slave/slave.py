@@ -54,11 +54,6 @@ from master_slave.process_args import (
 )
 from master_slave.realtime import LoopConfig, RateLoop
 from master_slave.safety import SafetyConfig, SafetyMonitor
-from master_slave.wire_pack import (
-    pack_contact_force,
-    pack_joint_state,
-    unpack_joint_setpoint,
-)
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -84,6 +79,8 @@ from teleop_force.transport.session import ZenohOptions, open_session, options_f
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
 
 ROLE = "slave"
+#: Joints of the Omni: a setpoint for another count is malformed.
+JOINTS = 3
 STATUS_PERIOD_S = 0.1
 SEQ_MASK = 0xFFFF_FFFF
 #: Hold events kept for the statistics (the oldest are dropped; all are counted).
@@ -162,7 +159,7 @@ class SetpointInbox:
         arrival_ns = time.time_ns()
         arrival_s = time.perf_counter()
         try:
-            seq, t_ns, q = unpack_joint_setpoint(sample.payload.to_bytes())
+            seq, t_ns, q = m.unpack_joint_setpoint(sample.payload.to_bytes(), JOINTS)
         except MessageError as exc:
             with self._lock:
                 self.malformed += 1
@@ -362,7 +359,7 @@ class SlaveProcess:
                 tau = tau - damping * pid.velocity_rad_s
             command = plant.command_torque(tau)
             seq = k & SEQ_MASK
-            joint_state = pack_joint_state(
+            joint_state = m.pack_joint_state(
                 seq, stamp_ns, q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
             )
             put_started_s = perf_counter()
@@ -371,7 +368,7 @@ class SlaveProcess:
             force = state.f_tip_in_base_n
             put(
                 cf_pub,
-                pack_contact_force(seq, stamp_ns, no_force if force is None else force.tolist()),
+                m.pack_contact_force(seq, stamp_ns, no_force if force is None else force.tolist()),
             )
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:

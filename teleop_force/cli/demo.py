@@ -38,7 +38,8 @@ wait for it.
 
 The supervisor's own statistics are cheap: its subscribers queue samples in Zenoh ring
 channels (no Python on Zenoh's receive threads) drained by one thread every 50 ms, which
-unpacks only the fixed head of each estimate and true force (:class:`_Monitor`).
+unpacks each estimate and true force without building a message object
+(:func:`~teleop_force.transport.messages.unpack_force_estimate`, :class:`_Monitor`).
 
 Summary JSON
 ------------
@@ -84,7 +85,6 @@ import math
 import os
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -362,12 +362,6 @@ class _Presence:
             return key in self.present
 
 
-#: seq, t_ns, source_seq, n and f_n of a ForceEstimate: all the supervisor reads of one.
-_ESTIMATE_HEAD: Final = struct.Struct("<2sBBIqIB3d")
-_CONTACT_FORCE: Final = struct.Struct("<2sBBIq3d")
-_ESTIMATE_TYPE: Final = int(m.MessageType.FORCE_ESTIMATE)
-_ESTIMATE_N_OFFSET: Final = m.HEADER_SIZE + 4  # the joint count, after the source seq
-_CONTACT_FORCE_TYPE: Final = int(m.MessageType.CONTACT_FORCE)
 #: Samples a monitor channel holds (about 30 s of a 2 kHz stall); beyond, the oldest go
 #: (and count as lost): the supervisor never blocks a publisher.
 _CHANNEL_CAPACITY: Final = 1 << 16
@@ -375,20 +369,14 @@ _CHANNEL_CAPACITY: Final = 1 << 16
 _DRAIN_PERIOD_S: Final = 0.05
 
 
-def _estimate_size(n: int) -> int:
-    """Wire size of a ForceEstimate of ``n`` joints (``messages`` module docstring)."""
-    return _ESTIMATE_HEAD.size + 32 * n + (n + 7) // 8
-
-
 class _Monitor:
     """The supervisor's own subscriptions: estimates, true forces, slave status.
 
     Cheap by construction: the subscribers queue samples in Zenoh's ring channels (no Python,
     no GIL on Zenoh's receive threads), and one worker thread drains them every
-    ``_DRAIN_PERIOD_S``. Of an estimate or a true force it unpacks only the fixed head with
-    one precompiled struct (seq for the loss count; source seq and force for the accuracy
-    figure) and checks what it reads: header, size, force. The service decodes every joint
-    state in full; the recording keeps every message.
+    ``_DRAIN_PERIOD_S``. It unpacks an estimate or a true force with the object-free
+    unpackers of :mod:`teleop_force.transport.messages` (every check of their ``decode``; seq
+    for the loss count, source seq and force for the accuracy figure).
     """
 
     def __init__(self, accuracy: AccuracyConfig) -> None:
@@ -447,39 +435,22 @@ class _Monitor:
             self.drain()
 
     def _on_estimate(self, payload: bytes) -> None:
-        size = len(payload)
-        if (
-            size >= _ESTIMATE_HEAD.size
-            and payload[_ESTIMATE_N_OFFSET] > 0
-            and size == _estimate_size(payload[_ESTIMATE_N_OFFSET])
-        ):
-            magic, version, kind, seq, _t, source_seq, _n, *force = _ESTIMATE_HEAD.unpack_from(
-                payload
-            )
-            if (
-                magic == m.MAGIC
-                and version == m.VERSION
-                and kind == _ESTIMATE_TYPE
-                and not any(map(math.isinf, force))
-            ):
-                self.estimates.observe(seq)
-                self.accuracy.add_estimate(source_seq, force)
-                return
-        self.malformed += 1
+        try:
+            seq, _t_ns, source_seq, force = m.unpack_force_estimate(payload)
+        except MessageError:
+            self.malformed += 1
+            return
+        self.estimates.observe(seq)
+        self.accuracy.add_estimate(source_seq, force)
 
     def _on_true_force(self, payload: bytes) -> None:
-        if len(payload) == _CONTACT_FORCE.size:
-            magic, version, kind, seq, _t, *force = _CONTACT_FORCE.unpack(payload)
-            if (
-                magic == m.MAGIC
-                and version == m.VERSION
-                and kind == _CONTACT_FORCE_TYPE
-                and math.isfinite(force[0] + force[1] + force[2])
-            ):
-                self.true_forces.observe(seq)
-                self.accuracy.add_true(seq, force)
-                return
-        self.malformed += 1
+        try:
+            seq, _t_ns, force = m.unpack_contact_force(payload)
+        except MessageError:
+            self.malformed += 1
+            return
+        self.true_forces.observe(seq)
+        self.accuracy.add_true(seq, force)
 
     def _on_status(self, payload: bytes) -> None:
         try:

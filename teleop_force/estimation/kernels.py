@@ -242,7 +242,11 @@ class ModelTerms:
         coverage_version = -1 if grids is None else grids.coverage.version
         versions = (network.structure_version, network.coef_version, coverage_version)
         arguments = self._network_arguments
-        if arguments is None or versions != self._versions:
+        if (
+            arguments is None
+            or versions != self._versions
+            or arguments[3] is not self._fallback.parameters  # replaced, not changed
+        ):
             if grids is not None:
                 grids.refresh()
                 grid_ints, grid_floats, values = grids.ints, grids.floats, grids.values
@@ -255,12 +259,8 @@ class ModelTerms:
             arguments = self._network_arguments = (
                 FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
                 self._fallback.parameters, inputs, wavelets, runs, self._psi, grid_ints,
-                grid_floats, values,
-                self.effect_codes, self.effect_floats,
+                grid_floats, values, self.effect_codes, self.effect_floats,
             )  # fmt: skip
-        elif arguments[3] is not self._fallback.parameters:
-            self._network_arguments = None
-            return self.arguments()
         return arguments
 
     def python_terms(self, qd: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -781,7 +781,9 @@ def peek_header(data: bytes | bytearray | memoryview) -> tuple[int, int, int, in
     return version, kind, seq, t_ns
 
 
-def unpack_joint_state(data: bytes | bytearray | memoryview) -> tuple[int, int, int, tuple]:
+def unpack_joint_state(
+    data: bytes | bytearray | memoryview,
+) -> tuple[int, int, int, tuple[float, ...]]:
     """Return ``(seq, t_ns, n, (q..., qd..., effort...))`` of a JointState without an object.
 
     The same checks as :meth:`JointState.decode` (raise MessageError), for receivers at
@@ -797,6 +799,136 @@ def unpack_joint_state(data: bytes | bytearray | memoryview) -> tuple[int, int, 
     if not _all_finite(values):
         raise MessageError("JointState: non-finite q_rad, qd_rad_s or effort_nm")
     return v[3], v[4], n, values
+
+
+def _check_joint_count(n: int, expected: int | None, name: str) -> None:
+    if expected is not None and n != expected:
+        raise MessageError(f"{name}: {n} joints, expected {expected}")
+
+
+def _packed(layout: struct.Struct, name: str, *values: Any) -> bytes:
+    try:
+        return layout.pack(*values)
+    except struct.error as exc:
+        raise MessageError(f"{name}: cannot encode: {exc}") from None
+
+
+def _joint_layout(table: tuple[struct.Struct, ...], n: int, name: str) -> struct.Struct:
+    if not 1 <= n <= MAX_JOINTS:
+        raise MessageError(f"{name}: {n} joints, expected 1..{MAX_JOINTS}")
+    return table[n]
+
+
+# Object-free encoding and decoding for 1 kHz senders and receivers: the bytes and checks of
+# the classes' encode() / decode(), without building (and validating) a message object.
+
+
+def pack_joint_state(
+    seq: int,
+    t_ns: int,
+    q_rad: Sequence[float],
+    qd_rad_s: Sequence[float],
+    effort_nm: Sequence[float],
+) -> bytes:
+    """Return the bytes of ``JointState(seq, t_ns, q_rad, qd_rad_s, effort_nm).encode()``.
+
+    Raise MessageError where the class would (lengths, non-finite values, ``seq`` or ``t_ns``
+    out of range).
+    """
+    n = len(q_rad)
+    if not len(qd_rad_s) == len(effort_nm) == n:
+        raise MessageError("JointState: q_rad, qd_rad_s and effort_nm differ in length")
+    layout = _joint_layout(_JOINT_STATE, n, "JointState")
+    payload = _packed(
+        layout, "JointState", MAGIC, VERSION, MessageType.JOINT_STATE, seq, t_ns, n,
+        *q_rad, *qd_rad_s, *effort_nm,
+    )  # fmt: skip
+    if not _all_finite((*q_rad, *qd_rad_s, *effort_nm)):
+        raise MessageError("JointState: non-finite q_rad, qd_rad_s or effort_nm")
+    return payload
+
+
+def pack_joint_setpoint(seq: int, t_ns: int, q_rad: Sequence[float]) -> bytes:
+    """Return the bytes of ``JointSetpoint(seq, t_ns, q_rad).encode()`` (MessageError as it)."""
+    n = len(q_rad)
+    layout = _joint_layout(_JOINT_SETPOINT, n, "JointSetpoint")
+    payload = _packed(
+        layout, "JointSetpoint", MAGIC, VERSION, MessageType.JOINT_SETPOINT, seq, t_ns, n, *q_rad
+    )
+    if not _all_finite(tuple(q_rad)):
+        raise MessageError("JointSetpoint: non-finite q_rad")
+    return payload
+
+
+def pack_contact_force(seq: int, t_ns: int, f_n: Sequence[float]) -> bytes:
+    """Return the bytes of ``ContactForce(seq, t_ns, f_n).encode()`` (MessageError as it)."""
+    if len(f_n) != 3:
+        raise MessageError(f"ContactForce: f_n has {len(f_n)} values, expected 3")
+    payload = _packed(
+        _CONTACT_FORCE, "ContactForce", MAGIC, VERSION, MessageType.CONTACT_FORCE, seq, t_ns, *f_n
+    )
+    if not _all_finite(tuple(f_n)):
+        raise MessageError("ContactForce: non-finite f_n")
+    return payload
+
+
+def unpack_joint_setpoint(
+    data: bytes | bytearray | memoryview, n_joints: int | None = None
+) -> tuple[int, int, tuple[float, ...]]:
+    """Return ``(seq, t_ns, q_rad)`` of a JointSetpoint, checked as :meth:`JointSetpoint.decode`.
+
+    ``n_joints``: refuse (MessageError) a setpoint of another joint count.
+    """
+    buf = _buffer(data)
+    _check_header(buf, MessageType.JOINT_SETPOINT)
+    n = _joint_count(buf, "JointSetpoint")
+    _check_joint_count(n, n_joints, "JointSetpoint")
+    layout = _JOINT_SETPOINT[n]
+    _check_size(buf, layout.size, "JointSetpoint")
+    v = layout.unpack(buf)
+    q = v[6:]
+    if not _all_finite(q):
+        raise MessageError("JointSetpoint: non-finite q_rad")
+    return v[3], v[4], q
+
+
+def unpack_contact_force(
+    data: bytes | bytearray | memoryview,
+) -> tuple[int, int, tuple[float, ...]]:
+    """Return ``(seq, t_ns, f_n)`` of a ContactForce, checked as :meth:`ContactForce.decode`."""
+    buf = _buffer(data)
+    _check_header(buf, MessageType.CONTACT_FORCE)
+    _check_size(buf, _CONTACT_FORCE.size, "ContactForce")
+    v = _CONTACT_FORCE.unpack(buf)
+    f = v[5:]
+    if not _all_finite(f):
+        raise MessageError("ContactForce: non-finite f_n")
+    return v[3], v[4], f
+
+
+def unpack_force_estimate(
+    data: bytes | bytearray | memoryview, n_joints: int | None = None
+) -> tuple[int, int, int, tuple[float, ...]]:
+    """Return ``(seq, t_ns, source_seq, f_n)`` of a ForceEstimate, the whole message checked.
+
+    The checks of :meth:`ForceEstimateMessage.decode` (``f_n`` may hold NaN, nothing else may
+    be non-finite, no mask bit beyond the joints); ``n_joints``: refuse another joint count.
+    """
+    buf = _buffer(data)
+    _check_header(buf, MessageType.FORCE_ESTIMATE)
+    n = _joint_count(buf, "ForceEstimate", offset=HEADER_SIZE + 4)
+    _check_joint_count(n, n_joints, "ForceEstimate")
+    layout = _FORCE_ESTIMATE[n]
+    _check_size(buf, layout.size, "ForceEstimate")
+    v = layout.unpack(buf)
+    if int.from_bytes(v[-1], "little") >> n:
+        raise MessageError(f"ForceEstimate: on_trained_ground bits set beyond joint {n}")
+    f = v[7:10]
+    if any(map(math.isinf, f)):
+        raise MessageError("ForceEstimate: infinite f_n")
+    if not _all_finite(v[10:-1]):
+        raise MessageError("ForceEstimate: non-finite joint-space value")
+    return v[3], v[4], v[5], f
 
 
 def pack_force_estimate(
@@ -837,7 +969,15 @@ __all__ = (
     "SafetyState",
     "Status",
     "decode",
+    "pack_contact_force",
+    "pack_force_estimate",
+    "pack_joint_setpoint",
+    "pack_joint_state",
     "peek_header",
     "schema_name",
     "sequence_gap",
+    "unpack_contact_force",
+    "unpack_force_estimate",
+    "unpack_joint_setpoint",
+    "unpack_joint_state",
 )
