@@ -1,12 +1,7 @@
 """BackgroundRecorder: raw payloads recorded in batches off the receive threads."""
 
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -16,8 +11,8 @@ from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
+from tests.io.crash_harness import kill_when_durable
 
-REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_000_000_000
 JS, CF, ST = keys.measured_js("s"), keys.measured_cf("s"), keys.status("s")
 
@@ -174,29 +169,7 @@ while True:
 
 def test_sigkill_of_a_recording_process_keeps_what_was_durable(tmp_path):
     path = tmp_path / "crash.mcap"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, "-c", CRASH_RECORDER, str(path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=REPO,
-    )
-    durable = 0
-    deadline = time.monotonic() + 30.0
-    try:
-        while durable < 5000 and time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            durable = int(line)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-        proc.stdout.close()
-        stderr = proc.stderr.read()
-        proc.stderr.close()
+    durable, _, stderr = kill_when_durable(CRASH_RECORDER, path, 5000)
     assert durable >= 5000, f"recorder did not get going: {stderr}"
     reader = SessionReader(path)
     assert reader.truncated

@@ -1,13 +1,8 @@
 import dataclasses
 import json
 import math
-import os
 import signal
-import subprocess
-import sys
 import threading
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +13,8 @@ from teleop_force.io.mcap_session import SessionReader, SessionWriter, read_sess
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from tests.io import cdr_reference
+from tests.io.crash_harness import kill_when_durable
 
-REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_000_000_000
 
 
@@ -305,31 +300,9 @@ while True:
 
 def test_sigkill_mid_recording_leaves_a_readable_file(tmp_path):
     path = tmp_path / "crash.mcap"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, "-c", CRASH_WRITER, str(path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=REPO,
-    )
-    durable = 0
-    deadline = time.monotonic() + 30.0
-    try:
-        while durable < 6000 and time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            durable = int(line)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-        proc.stdout.close()
-        stderr = proc.stderr.read()
-        proc.stderr.close()
+    durable, returncode, stderr = kill_when_durable(CRASH_WRITER, path, 6000)
     assert durable >= 6000, f"writer did not get going: {stderr}"
-    assert proc.returncode == -signal.SIGKILL
+    assert returncode == -signal.SIGKILL
     reader = SessionReader(path)
     assert reader.truncated
     count = sum(1 for _ in reader)
