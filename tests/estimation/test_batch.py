@@ -17,7 +17,7 @@ from teleop_force.estimation.rigid_chain import (
 )
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
-from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
+from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import BasisSpec, FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig
@@ -26,8 +26,8 @@ from teleop_force.robots.dvrk_mtm import dvrk_mtm_description
 from teleop_force.robots.omni import SPRING_STIFFNESS_NM_PER_RAD, omni_description
 from teleop_force.robots.teststand import teststand_description as stand_description
 from teleop_force.simulation import palpation_protocol
+from tests.estimation.network_cases import CV_PARAMETERS, random_network
 
-CV_PARAMETERS = np.array([0.02, 0.002, 0.02, 0.01, 0.003, 0.004, 0.01, 0.002, 0.018, 0.005])
 #: Found effects of every variable kind, ``t`` and a load (``tau2``) among them.
 EFFECTS = (
     (BasisSpec(0, "q1", "constant", "sign"), [0.004]),
@@ -49,18 +49,7 @@ RESTARTS = (700, 1900)
 
 
 def _network(seed: int = 0) -> WaveletNetwork:
-    """A wavelet network whose coverage ends inside the motion (blend weights in (0, 1))."""
-    description = omni_description()
-    fallback = CoupledCoulombViscous(3, description.friction_inputs, CV_PARAMETERS)
-    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0), fallback=fallback)
-    rng = np.random.default_rng(seed)
-    for j in range(3):
-        sl = net.pool.joint_slice(j)
-        idx = rng.choice(np.arange(sl.start, sl.stop), size=80, replace=False)
-        net.set_structure(j, idx, rng.normal(0.0, 1e-3, idx.size))
-    assert net.coverage is not None
-    net.coverage.add(rng.uniform(-0.15, 0.15, size=(20_000, 3)))
-    return net
+    return random_network(seed, 80, 0.15)
 
 
 def _friction(kind: str):

@@ -15,15 +15,14 @@ from teleop_force.estimation.kernels import (
     tip_force_into,
 )
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
-from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
+from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import BasisSpec, FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
 from teleop_force.identification.regressor import RigidBodyRegressor, full_parameters
 from teleop_force.robots.description import Robot
 from teleop_force.robots.omni import SPRING_STIFFNESS_NM_PER_RAD, omni_description
-
-CV_PARAMETERS = np.array([0.02, 0.002, 0.02, 0.01, 0.003, 0.004, 0.01, 0.002, 0.018, 0.005])
+from tests.estimation.network_cases import CV_PARAMETERS, random_network
 
 EFFECT_SPECS = [
     (BasisSpec(0, "q1", "constant", "sign"), [0.004]),
@@ -42,17 +41,7 @@ EFFECT_SPECS = [
 
 
 def _network(seed: int = 0) -> WaveletNetwork:
-    description = omni_description()
-    fallback = CoupledCoulombViscous(3, description.friction_inputs, CV_PARAMETERS)
-    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0), fallback=fallback)
-    rng = np.random.default_rng(seed)
-    for j in range(3):
-        sl = net.pool.joint_slice(j)
-        idx = rng.choice(np.arange(sl.start, sl.stop), size=120, replace=False)
-        net.set_structure(j, idx, rng.normal(0.0, 1e-3, idx.size))
-    assert net.coverage is not None
-    net.coverage.add(rng.uniform(-0.6, 0.6, size=(20_000, 3)))
-    return net
+    return random_network(seed)
 
 
 def _model(friction, effects=()) -> DynamicModel:
