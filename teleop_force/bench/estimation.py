@@ -1,12 +1,14 @@
 """Figure 1 of ``teleop-force bench``: the 1 kHz estimation step against a bare ``pin.rnea``.
 
-Every :meth:`ForceEstimator.update` call is timed on its own while the estimator streams a
-recording's samples: in alternate blocks of 100 with the wall clock (``perf_counter_ns``,
-the figure) and with the thread's CPU clock (``thread_time_ns``: the same work without the
-time the thread waited for a core, which on a shared machine is most of a wall p99).
-Between the blocks, as many ``rnea`` calls on the same pinocchio model at the same angles
-are timed together, so both see the same machine load. Reported: the update's p50 / p99 /
-max [µs], the mean of one ``rnea`` call, and the update's p50 as a multiple of it.
+Every :meth:`ForceEstimator.step` call (what the service runs per joint state; or
+:meth:`ForceEstimator.update`, which wraps it in a :class:`ForceEstimate`) is timed on its
+own while the estimator streams a recording's samples: in alternate blocks of 100 with the
+wall clock (``perf_counter_ns``, the figure) and with the thread's CPU clock
+(``thread_time_ns``: the same work without the time the thread waited for a core, which on a
+shared machine is most of a wall p99). Between the blocks, as many ``rnea`` calls on the same
+pinocchio model at the same angles are timed together, so both see the same machine load.
+Reported: the call's p50 / p99 / max [µs], the mean of one ``rnea`` call, and the call's p50
+as a multiple of it.
 """
 
 from __future__ import annotations
@@ -76,12 +78,15 @@ def time_estimation_step(
     tau_nm: np.ndarray,
     samples: int,
     warmup: int = 500,
+    call: str = "step",
 ) -> StepTiming:
     """Stream ``warmup + samples`` rows of a recording through a new estimator; time each update.
 
     The recording is cycled if it is shorter (the estimator is reset at each wrap so time
-    keeps increasing within a stream).
+    keeps increasing within a stream). ``call``: ``"step"`` or ``"update"``, the method timed.
     """
+    if call not in ("step", "update"):
+        raise ValueError(f"call must be 'step' or 'update', got {call!r}")
     estimator = ForceEstimator(model)
     robot = estimator.robot
     if robot is None:
@@ -99,7 +104,7 @@ def time_estimation_step(
     zero = np.zeros(pin_model.nv)  # model coordinates: nv > n with a parallelogram
     velocity = np.full(pin_model.nv, 0.3)
     wall_clock, cpu_clock = time.perf_counter_ns, time.thread_time_ns
-    update = estimator.update
+    update = estimator.step if call == "step" else estimator.update
     step_ns = np.empty(samples)
     cpu_ns = np.empty(samples)
     rnea_ns: list[float] = []

@@ -212,9 +212,9 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
             result.update(bench_model.figures)
             # 1. the estimation step, and its growth with the wavelets
             palpation = _palpation(options, log)
-            step = _time_main_step(options, bench_model.model, palpation, log)
+            timings = _time_main_step(options, bench_model.model, palpation, log)
             variants = _wavelet_variants(options, bench_model.model, palpation, work_dir, log)
-            result.update(_estimation_figures(step, variants))
+            result.update(_estimation_figures(timings, variants))
             result["wavelets_per_joint_by_setting"] = {
                 v.setting: v.counts for v in variants
             } or None
@@ -320,17 +320,17 @@ def _time_main_step(
     model: DynamicModel,
     palpation: dict[str, np.ndarray],
     log: Callable[[str], None],
-) -> StepTiming | None:
-    """Time the estimation step of the benchmark model (``None`` when it is off)."""
+) -> tuple[StepTiming, StepTiming] | None:
+    """Time the benchmark model's ``step`` and ``update`` (``None`` when it is off)."""
     from teleop_force.bench.estimation import time_estimation_step
 
     if not options.estimation:
         return None
-    log(f"estimation step: {options.estimate_samples} timed updates")
-    return time_estimation_step(
-        model, palpation["t_s"], palpation["q_rad"], palpation["tau_nm"],
-        options.estimate_samples,
-    )  # fmt: skip
+    log(f"estimation step: {options.estimate_samples} timed steps, as many updates")
+    arrays = palpation["t_s"], palpation["q_rad"], palpation["tau_nm"]
+    step = time_estimation_step(model, *arrays, options.estimate_samples)
+    update = time_estimation_step(model, *arrays, options.estimate_samples, call="update")
+    return step, update
 
 
 def _wavelet_variants(
@@ -364,12 +364,22 @@ def _wavelet_variants(
 
 
 def _estimation_figures(
-    step: StepTiming | None, variants: Sequence[_WaveletVariant]
+    timings: tuple[StepTiming, StepTiming] | None, variants: Sequence[_WaveletVariant]
 ) -> dict[str, Any]:
-    """Return the estimation figures (all ``None`` when the step was not timed)."""
+    """Return the estimation figures (all ``None`` when the step was not timed).
+
+    ``estimate_step_*``: :meth:`ForceEstimator.step`, the service's call per joint state;
+    ``estimate_update_*``: :meth:`ForceEstimator.update`, the step plus a ``ForceEstimate``.
+    """
     figures: dict[str, Any] = dict.fromkeys(_ESTIMATION_KEYS)
-    if step is None:
+    if timings is None:
         return figures
+    step, update = timings
+    figures.update(
+        estimate_update_p50_us=rounded(update.p50_us),
+        estimate_update_p99_us=rounded(update.p99_us),
+        estimate_update_vs_rnea=rounded(update.vs_rnea, 2),
+    )
     figures.update(
         estimate_step_p50_us=rounded(step.p50_us),
         estimate_step_p99_us=rounded(step.p99_us),
@@ -524,7 +534,8 @@ _ESTIMATION_KEYS = (
     "estimate_step_vs_rnea", "estimate_step_p99_vs_rnea", "estimate_samples",
     "estimate_timer_overhead_us", "estimate_step_p50_us_by_wavelets",
     "estimate_step_p99_us_by_wavelets", "estimate_step_cpu_p99_us_by_wavelets",
-    "estimate_step_vs_rnea_by_wavelets",
+    "estimate_step_vs_rnea_by_wavelets", "estimate_update_p50_us", "estimate_update_p99_us",
+    "estimate_update_vs_rnea",
 )  # fmt: skip
 #: Parts of ``teleop-force bench`` that ``--only`` selects (identification always runs: its
 #: model is the benchmark model of the others).

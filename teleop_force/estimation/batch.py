@@ -12,6 +12,11 @@ recursions in the same order::
     tau_ext_L   = L(L_v(tau))[k - lag] - tau_model_L
     F           = J(q)^-T tau_ext_L    (raw q; NaN and ``singular`` below ``sigma_min``)
 
+or, for a model whose filter configuration names the ``observer``, ``tau_ext`` the momentum
+observer's residual (:func:`~teleop_force.estimation.momentum_observer.observer_update_into`,
+the streaming step's own function, in a compiled loop) and ``tau_model_L = tau_L - tau_ext``;
+friction ramped to 0 in the standstill band as the streaming estimator ramps it.
+
 The work is done in passes over all samples rather than sample by sample: the filters are
 compiled loops (their sample intervals vary, so no ``lfilter``); the rigid-body terms and the
 tip Jacobian come from :mod:`teleop_force.estimation.rigid_chain` (pinocchio per sample for a
@@ -46,12 +51,14 @@ from teleop_force.estimation.estimator import (
     equivalent_rigid_body,
 )
 from teleop_force.estimation.kernels import ModelTerms, add_model_terms
+from teleop_force.estimation.momentum_observer import observer_update_into
 from teleop_force.estimation.rigid_chain import (
     ChainTables,
     chain_jacobian_batch,
     chain_tables,
     chain_terms_batch,
 )
+from teleop_force.friction.terms import standstill_factors
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.least_squares import relative_rms
 from teleop_force.io.interchange_csv import Recording
@@ -132,6 +139,9 @@ class BatchEstimator:
         self._lag = int(config.torque_lag_samples)
         self._omega_v = _TWO_PI * config.velocity_cutoff_hz
         self._omega = _TWO_PI * config.cutoff_hz
+        self._observer = config.observer
+        self._omega_observer = _TWO_PI * config.observer_hz
+        self._band = float(config.standstill_band_rad_s)
         robot = self.robot
         n = self.n
         self._tables: ChainTables | None = None
@@ -186,6 +196,12 @@ class BatchEstimator:
             tau_filtered, tau_model, tau_ext = _output_filter(
                 other, tau_v, load, dt, starts, self._omega, self._lag,
             )  # fmt: skip
+            if self._observer:
+                tau_ext = _observer_loop(
+                    momentum, tau_v, rigid_other, other, dt, starts, self._omega_observer,
+                    self._lag,
+                )  # fmt: skip
+                tau_model = tau_filtered - tau_ext
             force, singular = self._tip_forces(jacobian.result(), tau_ext)
         return BatchEstimates(
             t, force, tau_ext, tau_filtered, tau_model, weight,
@@ -248,7 +264,10 @@ class BatchEstimator:
             other = np.concatenate([p[0] for p in parts])
             weight = np.concatenate([p[1] for p in parts])
         if terms[0].python_friction:
-            other = other + self.model.friction_torque(qd)
+            torque = self.model.friction_torque(qd)
+            if self._band > 0.0:
+                torque = torque * standstill_factors(np.ascontiguousarray(qd), self._band)[:, None]
+            other = other + torque
             weight = np.ascontiguousarray(self.model.friction.coverage_weight(qd), dtype=float)
         return other, weight
 
@@ -518,6 +537,35 @@ def _output_filter(
             tau_model[k, i] = model
             tau_ext[k, i] = tau_filtered[k, i] - model
     return tau_filtered, tau_model, tau_ext
+
+
+@njit_cached()
+def _observer_loop(
+    momentum: np.ndarray,
+    tau_v: np.ndarray,
+    beta: np.ndarray,
+    other: np.ndarray,
+    dt: np.ndarray,
+    starts: np.ndarray,
+    omega: float,
+    lag: int,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Return the momentum observer's residual (the external torque) per sample, per stream.
+
+    :func:`~teleop_force.estimation.momentum_observer.observer_update_into` at every sample,
+    on ``p = M qd``, ``L_v(tau)``, ``beta = g - C^T qd + springs`` and friction + offsets +
+    effects, as the streaming estimator calls it.
+    """
+    n_samples, n = momentum.shape
+    residual = np.empty((n_samples, n))
+    p_hat = np.zeros(n)
+    drive = np.zeros(n)
+    for k in range(n_samples):
+        observer_update_into(
+            momentum[k], tau_v[k], beta[k], other[k], dt[k], omega, lag, starts[k], p_hat, drive,
+            residual[k],
+        )  # fmt: skip
+    return residual
 
 
 @njit_cached()

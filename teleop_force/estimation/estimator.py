@@ -11,7 +11,12 @@ regressor. Per sample::
     tau_ext_L   = L(L_v(tau))[k - lag] - tau_model_L
     F           = J(q)^-T tau_ext_L        (base frame, force of the tip on the environment)
 
-which is, sample for sample, the batch computation of
+or, with the model's ``estimator`` ``observer``, ``tau_ext`` the residual of the
+generalised-momentum observer (:mod:`teleop_force.estimation.momentum_observer`) on the same
+``p = M(q_v) qd``, ``beta``, friction and ``L_v(tau)``, and ``tau_model_L = tau_L - tau_ext``.
+Below the model's standstill band every friction torque is ramped to 0
+(:func:`~teleop_force.friction.terms.standstill_factor`). The filter form is, sample for
+sample, the batch computation of
 :meth:`~teleop_force.identification.dynamic_model.DynamicModel.predict_filtered_torque`. Found
 effects read
 ``tau<j>`` as the filtered rigid-body model torque ``D_L(M qd) + L(-C^T qd + N + tau_spring)``
@@ -33,15 +38,21 @@ figures.
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from teleop_force.errors import DataError, SingularityError
+from teleop_force.errors import ConfigurationError, DataError, ModelError, SingularityError
+from teleop_force.estimation.fused_step import StepTables, fused_step
 from teleop_force.estimation.kernels import (
+    RIGID_MATRICES,
+    RIGID_NONE,
     STATE_HEAD,
     STEP_NON_FINITE,
     STEP_OK,
@@ -52,6 +63,7 @@ from teleop_force.estimation.kernels import (
     spring_table,
     state_size,
 )
+from teleop_force.estimation.rigid_chain import chain_tables
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.regressor import full_parameters
 from teleop_force.robots.description import Robot
@@ -92,6 +104,64 @@ class ForceEstimate:
     singular: bool
 
 
+def with_estimator(
+    model: DynamicModel,
+    estimator: str | None = None,
+    observer_hz: float | None = None,
+    standstill_band_rad_s: float | None = None,
+) -> DynamicModel:
+    """Return ``model`` with its filter configuration's estimator choice overridden.
+
+    ``None`` keeps the model's own value; the result is ``model`` itself when nothing changes.
+    Its ``to_dict`` records the estimator that made the estimates. Raises ConfigurationError
+    for an unknown estimator or a bandwidth or band out of range.
+    """
+    config = model.filter_config
+    changes: dict[str, Any] = {}
+    if estimator is not None and estimator != config.estimator:
+        changes["estimator"] = estimator
+    if observer_hz is not None and observer_hz != config.observer_hz:
+        changes["observer_hz"] = float(observer_hz)
+    if standstill_band_rad_s is not None and standstill_band_rad_s != config.standstill_band_rad_s:
+        changes["standstill_band_rad_s"] = float(standstill_band_rad_s)
+    if not changes:
+        return model
+    return dataclasses.replace(model, filter_config=dataclasses.replace(config, **changes))
+
+
+def estimator_from_args(model: DynamicModel, args: argparse.Namespace) -> DynamicModel:
+    """Return ``model`` with the estimator flags (:mod:`teleop_force.estimation.flags`) applied."""
+    return with_estimator(model, args.estimator, args.observer_hz)
+
+
+def estimator_metadata(model: DynamicModel) -> dict[str, str]:
+    """Return the estimator choice of ``model`` as recording metadata (strings)."""
+    config = model.filter_config
+    return {
+        "estimator": config.estimator,
+        "observer_hz": repr(float(config.observer_hz)),
+        "standstill_band_rad_s": repr(float(config.standstill_band_rad_s)),
+    }
+
+
+def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> DynamicModel:
+    """Return ``model`` with the estimator choice a recording's metadata names (if it does).
+
+    Raises ConfigurationError for metadata that is not a valid choice.
+    """
+    numbers: dict[str, float | None] = {}
+    for key in ("observer_hz", "standstill_band_rad_s"):
+        text = metadata.get(key)
+        try:
+            numbers[key] = None if not text else float(text)
+        except ValueError:
+            raise ConfigurationError(f"recording metadata {key}={text!r} is not a number") from None
+    return with_estimator(
+        model, metadata.get("estimator") or None, numbers["observer_hz"],
+        numbers["standstill_band_rad_s"],
+    )  # fmt: skip
+
+
 def equivalent_rigid_body(model: DynamicModel) -> tuple[Robot | None, np.ndarray]:
     """Return the robot whose full parameters represent the model's base ones, and its springs.
 
@@ -125,8 +195,16 @@ class _PinocchioTerms:
 class ForceEstimator:
     """Streaming estimator of the tip contact force from joint angles and motor torques."""
 
-    def __init__(self, model: DynamicModel, sigma_min: float = DEFAULT_SIGMA_MIN) -> None:
-        """Build the equivalent rigid-body model and the filters."""
+    def __init__(
+        self, model: DynamicModel, sigma_min: float = DEFAULT_SIGMA_MIN, *, fused: bool = True
+    ) -> None:
+        """Build the equivalent rigid-body model and the filters.
+
+        ``fused``: run each sample in one compiled call (:mod:`~teleop_force.estimation.
+        fused_step`) where the model allows it (a rigid body its kinematic chain encodes, a
+        friction with a term encoding); False: always the two halves around pinocchio (the
+        reference the fused step is tested against).
+        """
         self.model = model
         self.n = model.n_joints
         self.sigma_min = sigma_min
@@ -140,8 +218,32 @@ class ForceEstimator:
         self._lag = int(config.torque_lag_samples)
         self._omega_v = _TWO_PI * config.velocity_cutoff_hz
         self._omega = _TWO_PI * config.cutoff_hz
+        self._observer = config.observer
+        self._omega_observer = _TWO_PI * config.observer_hz
         self._allocate()
+        self._tables = self._fused_tables() if fused else None
         self.reset()
+
+    @property
+    def fused(self) -> bool:
+        """Whether :meth:`step` runs the one-call compiled step."""
+        return self._tables is not None
+
+    def _fused_tables(self) -> StepTables | None:
+        robot = self.robot
+        if robot is None:
+            return None
+        try:
+            self._terms.arguments()
+        except ModelError:  # e.g. a network without fallback: raised by step, as the halves do
+            return None
+        return StepTables.create(
+            self._terms, chain_tables(robot.model, robot.description.tip_frame),
+            coupling=self._coupling, rotor=self._rotor, springs=self._springs,
+            omega_v=self._omega_v, omega=self._omega, omega_observer=self._omega_observer,
+            observer=self._observer, lag=self._lag, sigma_min=self.sigma_min,
+            tip=self._tip_kernel,
+        )  # fmt: skip
 
     def _allocate(self) -> None:
         """Preallocate the step's state, inputs, pinocchio inputs and outputs."""
@@ -181,7 +283,11 @@ class ForceEstimator:
         ``[F (3), tau_ext (n), tau_motor_filtered (n), tau_model_filtered (n), coverage
         weight (n), singular (0/1)]``: the fields of :class:`ForceEstimate` without copies, for
         callers at 1 kHz (the service). Raises DataError on a bad sample (state untouched).
+        ``q_rad`` and ``tau_nm``: arrays or tuples of floats (the fastest), or sequences.
         """
+        tables = self._tables
+        if tables is not None:
+            return self._fused_step(tables, t_s, q_rad, tau_nm)
         n = self.n
         sample = self._sample
         try:
@@ -220,7 +326,8 @@ class ForceEstimator:
             extra = np.concatenate((torque, weight))
         out = self._out
         finish_step(
-            self._state, sample, self._omega, self._lag, rigid is not None, self._v_model,
+            self._state, sample, self._omega, self._lag, self._observer, self._omega_observer,
+            RIGID_NONE if rigid is None else RIGID_MATRICES, self._v_model,
             mass, coriolis, gravity, self._coupling, self._rotor, self._springs,
             self._tip_kernel, jacobian, self._jacobian_motor, self.sigma_min, extra,
             self._scratch, out, *terms.arguments(),
@@ -228,6 +335,46 @@ class ForceEstimator:
         if self._has_tip and not self._tip_kernel:
             self._tip_force_python(q_rad, out)
         return out
+
+    def _fused_step(
+        self,
+        tables: StepTables,
+        t_s: float,
+        q_rad: Sequence[float] | np.ndarray,
+        tau_nm: Sequence[float] | np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`step` in one compiled call."""
+        tables.refresh()
+        if not isinstance(q_rad, (tuple, np.ndarray)) or not isinstance(
+            tau_nm, (tuple, np.ndarray)
+        ):
+            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
+        arguments = (*tables.call_arguments, self._out)
+        try:
+            code = fused_step(self._state, t_s, q_rad, tau_nm, *arguments)
+        except ValueError as exc:  # a wrong number of joints
+            raise DataError(f"expected {self.n} joint angles and torques: {exc}") from exc
+        except Exception:
+            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
+            code = fused_step(self._state, t_s, q_rad, tau_nm, *arguments)
+        if code != STEP_OK:
+            raise self._step_error(code, t_s)
+        if self._has_tip and not self._tip_kernel:
+            self._tip_force_python(q_rad, self._out)
+        return self._out
+
+    def _as_arrays(
+        self, q_rad: Sequence[float] | np.ndarray, tau_nm: Sequence[float] | np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Float arrays of one sample's angles and torques (DataError for anything else)."""
+        try:
+            q = np.asarray(q_rad, dtype=float).reshape(-1)
+            tau = np.asarray(tau_nm, dtype=float).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"expected {self.n} joint angles and torques: {exc}") from exc
+        if q.size != self.n or tau.size != self.n:
+            raise DataError(f"expected {self.n} joint angles and torques")
+        return q, tau
 
     def _step_error(self, code: int, t_s: float) -> DataError:
         if code == STEP_NON_FINITE:

@@ -11,8 +11,10 @@ ForceEstimator`):
 * :func:`finish_step`: the rigid-body terms from pinocchio's ``M``, ``C``, ``g``
   (:func:`rigid_terms_into`), the second filter ``L``, friction (Coulomb-viscous term tables,
   or a wavelet network blended with its fallback by the coverage trust), offsets and found
-  effects (:func:`add_model_terms`), the external torque and ``F = J^-T tau_ext``
-  (:func:`tip_force_into`).
+  effects (:func:`add_model_terms`, the friction ramped to 0 in the standstill band), the
+  external torque (the filtered dynamics, or the momentum observer of
+  :mod:`teleop_force.estimation.momentum_observer`, as the model's filter configuration
+  says) and ``F = J^-T tau_ext`` (:func:`tip_force_into`).
 
 The terms are the single definitions of :mod:`teleop_force.friction.terms` and
 :mod:`teleop_force.identification.effect_terms`, which the batch methods call too; the model
@@ -36,10 +38,12 @@ import numpy as np
 
 from teleop_force.compiled import njit_cached
 from teleop_force.errors import ModelError
+from teleop_force.estimation.momentum_observer import observer_update_into
 from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     coverage_trust_into,
     linear_friction_torque_into,
+    standstill_scale_into,
     term_velocity,
     trust_blend,
     wavelet_network_torque_into,
@@ -51,6 +55,10 @@ from teleop_force.identification.effects import effects_table
 
 #: Friction modes of :func:`add_model_terms`.
 FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK = 0, 1, 2
+#: What :func:`finish_step`'s ``rigid`` says: no rigid body, pinocchio's ``M``, ``C``, ``g`` in
+#: ``mass``, ``coriolis``, ``gravity``, or (the fused step) ``mass`` rows ``[M v, g - C^T v]``
+#: already computed in model coordinates.
+RIGID_NONE, RIGID_MATRICES, RIGID_MOMENTA = 0, 1, 2
 #: Status codes of :func:`prefilter_step`.
 STEP_OK, STEP_NON_FINITE, STEP_TIME_NOT_INCREASING = 0, 1, 2
 #: Slots of the estimator state before the filter states: has a previous sample, its time,
@@ -59,8 +67,8 @@ STATE_HEAD = 3
 
 
 def state_size(n: int) -> int:
-    """Length of the estimator state: head, ``L_v`` state (2 n), ``L`` state (4 n), q, qd."""
-    return STATE_HEAD + 8 * n
+    """Length of the estimator state: head, ``L_v`` (2 n), ``L`` (4 n), q, qd, observer (2 n)."""
+    return STATE_HEAD + 10 * n
 
 
 def output_size(n: int) -> int:
@@ -94,13 +102,15 @@ def add_model_terms(
     grid_values: np.ndarray,
     effect_codes: np.ndarray,
     effect_floats: np.ndarray,
+    standstill_band_rad_s: float,
 ) -> None:  # pragma: no cover - compiled
     """Write friction + offsets + found effects to ``other`` and the coverage trust to ``weight``.
 
     ``mode``: no friction, a Coulomb-viscous term table (``linear_table`` = ``[rows | reach]``,
     (T, 2 n)), or a wavelet table blended with its fallback term table by the trust of the
-    coverage grids (``grid_ints`` with no rows: trust 1). ``network`` (n) and ``work`` are
-    scratch.
+    coverage grids (``grid_ints`` with no rows: trust 1). The friction is ramped to 0 below
+    the standstill band (:func:`~teleop_force.friction.terms.standstill_factor`; 0: off).
+    ``network`` (n) and ``work`` are scratch.
     """
     n = q.size
     for j in range(n):
@@ -121,6 +131,7 @@ def add_model_terms(
             coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
         for j in range(n):
             other[j] = trust_blend(weight[j], network[j], other[j])
+    standstill_scale_into(qd, standstill_band_rad_s, other)
     for j in range(n):
         other[j] += offsets[j]
     add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
@@ -176,7 +187,8 @@ _NO_RUNS = np.zeros((0, 2), dtype=np.int64)
 class ModelTerms:
     """A model's friction, offsets and found effects encoded for :func:`add_model_terms`.
 
-    :meth:`arguments` gives the kernel's arguments for the next sample, following later
+    :meth:`arguments` gives the kernel's arguments for the next sample (the model's standstill
+    band last, from its filter configuration), following later
     changes of the model's friction: new parameters (read live), a network's new structure or
     coefficients, a replaced fallback or coverage map, new coverage counts. Calling the object
     evaluates one sample (tests and one-off use; the estimator calls the step kernels).
@@ -187,6 +199,8 @@ class ModelTerms:
         self.model = model
         self.n = n = model.n_joints
         self.friction = model.friction
+        #: The standstill dead band of the friction [rad/s] (0: off).
+        self.standstill_band_rad_s = float(model.filter_config.standstill_band_rad_s)
         table = effects_table(model.effects, n)
         self.effect_codes, self.effect_floats = table.codes, table.floats
         self.work = np.zeros(table.work.size)
@@ -210,7 +224,7 @@ class ModelTerms:
             _NO_PARAMETERS if self._linear is None else self.friction.parameters,
             _NO_WAVELET_INPUTS, _NO_FLOATS, _NO_RUNS, _NO_VALUES, _NO_INTS, _NO_FLOATS,
             _NO_VALUES,
-            self.effect_codes, self.effect_floats,
+            self.effect_codes, self.effect_floats, self.standstill_band_rad_s,
         )  # fmt: skip
 
     def _refresh_network(self, network: WaveletNetwork) -> None:
@@ -260,14 +274,20 @@ class ModelTerms:
                 FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
                 self._fallback.parameters, inputs, wavelets, runs, self._psi, grid_ints,
                 grid_floats, values, self.effect_codes, self.effect_floats,
+                self.standstill_band_rad_s,
             )  # fmt: skip
         return arguments
 
     def python_terms(self, qd: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Friction torque and coverage weight (n each) of a friction without term encoding."""
+        """Friction torque and coverage weight (n each) of a friction without term encoding.
+
+        The torque is ramped by the standstill band as :func:`add_model_terms` ramps its own.
+        """
         row = np.asarray([qd], dtype=float)
+        torque = np.ascontiguousarray(self.model.friction_torque(row)[0], dtype=float)
+        standstill_scale_into(row[0], self.standstill_band_rad_s, torque)
         return (
-            np.ascontiguousarray(self.model.friction_torque(row)[0], dtype=float),
+            torque,
             np.ascontiguousarray(self.friction.coverage_weight(row)[0], dtype=float),
         )
 
@@ -360,6 +380,43 @@ def rigid_terms_into(
         other[j] += springs[s, 1] * (q[j] - springs[s, 2])
 
 
+@njit_cached()
+def momenta_to_motor_into(
+    q: np.ndarray,
+    qd: np.ndarray,
+    momenta: np.ndarray,
+    coupling: np.ndarray,
+    rotor: np.ndarray,
+    springs: np.ndarray,
+    momentum: np.ndarray,
+    other: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """:func:`rigid_terms_into` from ``momenta`` = rows ``[M v_model, g - C^T v_model]``.
+
+    The model-coordinate terms as the compiled chain gives them
+    (:func:`~teleop_force.estimation.rigid_chain.chain_momentum_into`), mapped to motor
+    coordinates with ``T^T``, the rotor inertia and the springs.
+    """
+    n_model, n = coupling.shape
+    for j in range(n):
+        momentum[j] = rotor[j] * qd[j]
+        other[j] = 0.0
+    for i in range(n_model):
+        p = momenta[0, i]
+        w = momenta[1, i]
+        for j in range(n):
+            t = coupling[i, j]
+            if t == 1.0:
+                momentum[j] += p
+                other[j] += w
+            elif t != 0.0:
+                momentum[j] += t * p
+                other[j] += t * w
+    for s in range(springs.shape[0]):
+        j = int(springs[s, 0])
+        other[j] += springs[s, 1] * (q[j] - springs[s, 2])
+
+
 def spring_table(joints: Sequence[int], stiffness: np.ndarray, rest: Sequence[float]) -> np.ndarray:
     """Rows ``[joint, stiffness, rest angle]`` of the springs for :func:`rigid_terms_into`."""
     table = np.zeros((len(joints), 3))
@@ -426,7 +483,8 @@ def prefilter_step(
     """Check one sample, run ``L_v`` and the backward difference; write pinocchio's inputs.
 
     ``sample`` is ``[t, q (n), tau (n)]``; ``state`` (:func:`state_size`) holds
-    ``[has previous, previous t, first t, L_v state (2 n), L state (4 n), q (n), qd (n)]``.
+    ``[has previous, previous t, first t, L_v state (2 n), L state (4 n), q (n), qd (n),
+    observer state (2 n)]``.
     Writes ``q_model = T L_v(q)``, ``v_model = T qd`` and ``q_jacobian = T q`` (raw angles).
     Returns a status (``STEP_*``); on an error the state is untouched.
     """
@@ -469,7 +527,9 @@ def finish_step(
     sample: np.ndarray,
     omega: float,
     lag: int,
-    rigid: bool,
+    observer: bool,
+    omega_observer: float,
+    rigid: int,
     v_model: np.ndarray,
     mass: np.ndarray,
     coriolis: np.ndarray,
@@ -497,15 +557,21 @@ def finish_step(
     grid_values: np.ndarray,
     effect_codes: np.ndarray,
     effect_floats: np.ndarray,
+    standstill_band_rad_s: float,
 ) -> None:  # pragma: no cover - compiled
     """Rigid body, the filter ``L``, the model's terms, ``tau_ext`` and ``F`` at one sample.
 
-    After :func:`prefilter_step`. ``rigid``: whether ``mass``, ``coriolis``, ``gravity`` hold
-    this sample's pinocchio terms (else the rigid body is zero); ``tip``: whether
+    After :func:`prefilter_step`. ``rigid`` (``RIGID_*``): whether ``mass``, ``coriolis``,
+    ``gravity`` hold this sample's pinocchio terms, or ``mass`` the rows ``[M v, g - C^T v]``
+    (model coordinates), or there is no rigid body (zero); ``tip``: whether
     ``jacobian_model`` holds the tip Jacobian at the raw angles and ``n == 3`` (else ``F`` is
     NaN; ``jacobian_motor``, 3 x 3, receives ``J``). ``extra`` (2 n, or empty): friction
-    torque and coverage weight computed outside (a friction without term encoding).
-    ``scratch``: 7 n + the effects' work.
+    torque and coverage weight computed outside (a friction without term encoding, its
+    standstill ramp applied). ``scratch``: 7 n + the effects' work.
+    ``observer``: ``tau_ext`` is the momentum observer's residual at bandwidth
+    ``omega_observer`` [rad/s] (:func:`~teleop_force.estimation.momentum_observer.
+    observer_update_into`, its state the last 2 n of ``state``) and ``tau_model`` is
+    ``tau_L - tau_ext``; else ``tau_ext = tau_L - tau_model`` of the filtered dynamics.
     ``out`` (:func:`output_size`): ``[F, tau_ext, tau_L, tau_model, weight, singular]``.
     """
     n = coupling.shape[1]
@@ -516,6 +582,8 @@ def finish_step(
     stage2 = state[STATE_HEAD + 2 * n : STATE_HEAD + 6 * n]
     q = state[STATE_HEAD + 6 * n : STATE_HEAD + 7 * n]
     qd = state[STATE_HEAD + 7 * n : STATE_HEAD + 8 * n]
+    p_hat = state[STATE_HEAD + 8 * n : STATE_HEAD + 9 * n]
+    drive = state[STATE_HEAD + 9 * n : STATE_HEAD + 10 * n]
     x_head = scratch[: 2 * n]
     load = scratch[2 * n : 3 * n]
     other = scratch[3 * n : 4 * n]
@@ -523,11 +591,13 @@ def finish_step(
     previous_tau = scratch[5 * n : 6 * n]
     work = scratch[7 * n :]
     weight = out[3 + 3 * n : 3 + 4 * n]
-    if rigid:
+    if rigid == RIGID_MATRICES:
         rigid_terms_into(
             q, qd, v_model, mass, coriolis, gravity, coupling, rotor, springs,
             x_head[:n], x_head[n:],
         )  # fmt: skip
+    elif rigid == RIGID_MOMENTA:
+        momenta_to_motor_into(q, qd, mass, coupling, rotor, springs, x_head[:n], x_head[n:])
     else:
         for k in range(2 * n):
             x_head[k] = 0.0
@@ -554,7 +624,7 @@ def finish_step(
         t - state[2], q, qd, load, other, weight, network, work, mode, offsets, linear_table,
         linear_parameters, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, grid_ints,
         grid_floats, grid_values,
-        effect_codes, effect_floats,
+        effect_codes, effect_floats, standstill_band_rad_s,
     )  # fmt: skip
     if extra.size > 0:
         for k in range(n):
@@ -575,9 +645,17 @@ def finish_step(
             tau_filtered[k] = tail[n + k] if lag == 0 else previous_tau[k]
     tau_ext = out[3 : 3 + n]
     tau_model = out[3 + 2 * n : 3 + 3 * n]
-    for k in range(n):
-        tau_model[k] = load[k] + tail[k]
-        tau_ext[k] = tau_filtered[k] - tau_model[k]
+    if observer:
+        observer_update_into(
+            x_head[:n], tau_v, x_head[n:], other, dt, omega_observer, lag, first, p_hat, drive,
+            tau_ext,
+        )  # fmt: skip
+        for k in range(n):
+            tau_model[k] = tau_filtered[k] - tau_ext[k]
+    else:
+        for k in range(n):
+            tau_model[k] = load[k] + tail[k]
+            tau_ext[k] = tau_filtered[k] - tau_model[k]
     state[0] = 1.0
     state[1] = t
     out[3 + 4 * n] = 0.0

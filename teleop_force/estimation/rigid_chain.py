@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from teleop_force.compiled import njit_cached
+from teleop_force.compiled import njit_cached, view_2d, view_3d
 
 #: Joint kinds of the tables.
 REVOLUTE, PRISMATIC = 0, 1
@@ -229,6 +229,193 @@ def _forward_kinematics(
 
 
 @njit_cached()
+def chain_kinematics_into(
+    q: np.ndarray,
+    parent: np.ndarray,
+    kind: np.ndarray,
+    axis: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    velocity_index: np.ndarray,
+    work: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Body poses and motion axes at ``q`` into ``work`` (:func:`chain_work_size` floats).
+
+    What :func:`chain_momentum_into` and :func:`chain_tip_jacobian_into` read.
+    """
+    nb = parent.size
+    if work.size < chain_work_size(nb):
+        raise ValueError("chain work buffer too small")
+    _forward_kinematics(
+        q, parent, kind, axis, rotation, translation, velocity_index, view_3d(work, 0, nb, 3, 3),
+        view_2d(work, 9 * nb, nb, 3), view_2d(work, 12 * nb, nb, 6),
+        view_2d(work, 36 * nb, 3, 3), work[36 * nb + 9 : 36 * nb + 12],
+    )  # fmt: skip
+
+
+@njit_cached()
+def chain_momentum_into(
+    v: np.ndarray,
+    parent: np.ndarray,
+    velocity_index: np.ndarray,
+    mass: np.ndarray,
+    com: np.ndarray,
+    inertia: np.ndarray,
+    gravity: np.ndarray,
+    work: np.ndarray,
+    momentum: np.ndarray,
+    other: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """``M(q) v`` into ``momentum`` and ``g(q) - C(q, v)^T v`` into ``other``.
+
+    At the ``q`` of the last :func:`chain_kinematics_into` on ``work``. Model coordinates
+    (pinocchio's), no rotor inertia, no spring.
+    """
+    nb = parent.size
+    pose_r = view_3d(work, 0, nb, 3, 3)
+    pose_p = view_2d(work, 9 * nb, nb, 3)
+    motion = view_2d(work, 12 * nb, nb, 6)
+    vel = view_2d(work, 18 * nb, nb, 6)
+    mom = view_2d(work, 24 * nb, nb, 6)  # H: subtree momentum
+    grav = view_2d(work, 30 * nb, nb, 6)  # F: subtree gravity force
+    g0, g1, g2 = -gravity[0], -gravity[1], -gravity[2]
+    for b in range(nb):
+        lam = parent[b]
+        qd_b = v[velocity_index[b]]
+        for i in range(6):
+            base = 0.0 if lam < 0 else vel[lam, i]
+            vel[b, i] = base + motion[b, i] * qd_b
+        vx, vy, vz = vel[b, 0], vel[b, 1], vel[b, 2]
+        wx, wy, wz = vel[b, 3], vel[b, 4], vel[b, 5]
+        # centre of mass in the world
+        cx, cy, cz = pose_p[b, 0], pose_p[b, 1], pose_p[b, 2]
+        for c in range(3):
+            cx += pose_r[b, 0, c] * com[b, c]
+            cy += pose_r[b, 1, c] * com[b, c]
+            cz += pose_r[b, 2, c] * com[b, c]
+        m_b = mass[b]
+        # linear momentum m (v + w x c)
+        lx = m_b * (vx + wy * cz - wz * cy)
+        ly = m_b * (vy + wz * cx - wx * cz)
+        lz = m_b * (vz + wx * cy - wy * cx)
+        # rotational inertia about the com, world: R I R^T w
+        bx = pose_r[b, 0, 0] * wx + pose_r[b, 1, 0] * wy + pose_r[b, 2, 0] * wz
+        by = pose_r[b, 0, 1] * wx + pose_r[b, 1, 1] * wy + pose_r[b, 2, 1] * wz
+        bz = pose_r[b, 0, 2] * wx + pose_r[b, 1, 2] * wy + pose_r[b, 2, 2] * wz
+        ix = inertia[b, 0, 0] * bx + inertia[b, 0, 1] * by + inertia[b, 0, 2] * bz
+        iy = inertia[b, 1, 0] * bx + inertia[b, 1, 1] * by + inertia[b, 1, 2] * bz
+        iz = inertia[b, 2, 0] * bx + inertia[b, 2, 1] * by + inertia[b, 2, 2] * bz
+        kx = pose_r[b, 0, 0] * ix + pose_r[b, 0, 1] * iy + pose_r[b, 0, 2] * iz
+        ky = pose_r[b, 1, 0] * ix + pose_r[b, 1, 1] * iy + pose_r[b, 1, 2] * iz
+        kz = pose_r[b, 2, 0] * ix + pose_r[b, 2, 1] * iy + pose_r[b, 2, 2] * iz
+        # angular momentum about the origin: I_c w + c x l
+        kx += cy * lz - cz * ly
+        ky += cz * lx - cx * lz
+        kz += cx * ly - cy * lx
+        mom[b, 0], mom[b, 1], mom[b, 2] = lx, ly, lz
+        mom[b, 3], mom[b, 4], mom[b, 5] = kx, ky, kz
+        # gravity as the base accelerating by -g: force m a0 at the com
+        fx, fy, fz = m_b * g0, m_b * g1, m_b * g2
+        grav[b, 0], grav[b, 1], grav[b, 2] = fx, fy, fz
+        grav[b, 3] = cy * fz - cz * fy
+        grav[b, 4] = cz * fx - cx * fz
+        grav[b, 5] = cx * fy - cy * fx
+    for b in range(nb - 1, -1, -1):
+        s = motion[b]
+        vx, vy, vz = vel[b, 0], vel[b, 1], vel[b, 2]
+        wx, wy, wz = vel[b, 3], vel[b, 4], vel[b, 5]
+        lx, ly, lz = mom[b, 0], mom[b, 1], mom[b, 2]
+        kx, ky, kz = mom[b, 3], mom[b, 4], mom[b, 5]
+        # v_b x* H_b = (w x l, v x l + w x k): S . (v x* H) = -(C^T v)_b
+        c0 = wy * lz - wz * ly
+        c1 = wz * lx - wx * lz
+        c2 = wx * ly - wy * lx
+        c3 = vy * lz - vz * ly + wy * kz - wz * ky
+        c4 = vz * lx - vx * lz + wz * kx - wx * kz
+        c5 = vx * ly - vy * lx + wx * ky - wy * kx
+        p = s[0] * lx + s[1] * ly + s[2] * lz + s[3] * kx + s[4] * ky + s[5] * kz
+        g = s[0] * grav[b, 0] + s[1] * grav[b, 1] + s[2] * grav[b, 2]
+        g += s[3] * grav[b, 3] + s[4] * grav[b, 4] + s[5] * grav[b, 5]
+        ct = s[0] * c0 + s[1] * c1 + s[2] * c2 + s[3] * c3 + s[4] * c4 + s[5] * c5
+        index = velocity_index[b]
+        momentum[index] = p
+        other[index] = g + ct
+        lam = parent[b]
+        if lam >= 0:
+            for i in range(6):
+                mom[lam, i] += mom[b, i]
+                grav[lam, i] += grav[b, i]
+
+
+@njit_cached()
+def chain_terms_into(
+    q: np.ndarray,
+    v: np.ndarray,
+    parent: np.ndarray,
+    kind: np.ndarray,
+    axis: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    velocity_index: np.ndarray,
+    mass: np.ndarray,
+    com: np.ndarray,
+    inertia: np.ndarray,
+    gravity: np.ndarray,
+    work: np.ndarray,
+    momentum: np.ndarray,
+    other: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """``M(q) v`` and ``g(q) - C(q, v)^T v`` at one sample (the two functions above)."""
+    chain_kinematics_into(q, parent, kind, axis, rotation, translation, velocity_index, work)
+    chain_momentum_into(
+        v, parent, velocity_index, mass, com, inertia, gravity, work, momentum, other
+    )
+
+
+@njit_cached()
+def chain_work_size(n_bodies: int) -> int:  # pragma: no cover - compiled
+    """Scratch floats of the one-sample functions (poses, axes, velocities, momenta)."""
+    return 36 * n_bodies + 12
+
+
+@njit_cached()
+def chain_tip_jacobian_into(
+    parent: np.ndarray,
+    velocity_index: np.ndarray,
+    tip_body: int,
+    tip_translation: np.ndarray,
+    tip_support: np.ndarray,
+    work: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Write the tip's translational Jacobian (world axes) into ``out`` (3, nv).
+
+    At the ``q`` of the last :func:`chain_kinematics_into` on ``work``.
+    """
+    nb = parent.size
+    pose_r = view_3d(work, 0, nb, 3, 3)
+    pose_p = view_2d(work, 9 * nb, nb, 3)
+    motion = view_2d(work, 12 * nb, nb, 6)
+    px, py, pz = pose_p[tip_body, 0], pose_p[tip_body, 1], pose_p[tip_body, 2]
+    for c in range(3):
+        px += pose_r[tip_body, 0, c] * tip_translation[c]
+        py += pose_r[tip_body, 1, c] * tip_translation[c]
+        pz += pose_r[tip_body, 2, c] * tip_translation[c]
+    for i in range(out.shape[1]):
+        out[0, i] = 0.0
+        out[1, i] = 0.0
+        out[2, i] = 0.0
+    for b in range(nb):
+        if tip_support[b] == 0:
+            continue
+        index = velocity_index[b]
+        wx, wy, wz = motion[b, 3], motion[b, 4], motion[b, 5]
+        out[0, index] = motion[b, 0] + wy * pz - wz * py
+        out[1, index] = motion[b, 1] + wz * px - wx * pz
+        out[2, index] = motion[b, 2] + wx * py - wy * px
+
+
+@njit_cached()
 def chain_terms_batch(
     q: np.ndarray,
     v: np.ndarray,
@@ -248,89 +435,14 @@ def chain_terms_batch(
     Model coordinates (pinocchio's), no rotor inertia, no spring.
     """
     n_samples, nv = q.shape
-    nb = parent.size
-    pose_r = np.empty((nb, 3, 3))
-    pose_p = np.empty((nb, 3))
-    motion = np.empty((nb, 6))
-    scratch_m = np.empty((3, 3))
-    scratch_o = np.empty(3)
-    vel = np.empty((nb, 6))
-    mom = np.empty((nb, 6))  # H: subtree momentum
-    grav = np.empty((nb, 6))  # F: subtree gravity force
+    work = np.empty(36 * parent.size + 12)
     momentum = np.empty((n_samples, nv))
     other = np.empty((n_samples, nv))
-    g0, g1, g2 = -gravity[0], -gravity[1], -gravity[2]
     for k in range(n_samples):
-        _forward_kinematics(
-            q[k], parent, kind, axis, rotation, translation, velocity_index, pose_r, pose_p,
-            motion, scratch_m, scratch_o,
+        chain_terms_into(
+            q[k], v[k], parent, kind, axis, rotation, translation, velocity_index, mass, com,
+            inertia, gravity, work, momentum[k], other[k],
         )  # fmt: skip
-        for b in range(nb):
-            lam = parent[b]
-            qd_b = v[k, velocity_index[b]]
-            for i in range(6):
-                base = 0.0 if lam < 0 else vel[lam, i]
-                vel[b, i] = base + motion[b, i] * qd_b
-            vx, vy, vz = vel[b, 0], vel[b, 1], vel[b, 2]
-            wx, wy, wz = vel[b, 3], vel[b, 4], vel[b, 5]
-            # centre of mass in the world
-            cx, cy, cz = pose_p[b, 0], pose_p[b, 1], pose_p[b, 2]
-            for c in range(3):
-                cx += pose_r[b, 0, c] * com[b, c]
-                cy += pose_r[b, 1, c] * com[b, c]
-                cz += pose_r[b, 2, c] * com[b, c]
-            m_b = mass[b]
-            # linear momentum m (v + w x c)
-            lx = m_b * (vx + wy * cz - wz * cy)
-            ly = m_b * (vy + wz * cx - wx * cz)
-            lz = m_b * (vz + wx * cy - wy * cx)
-            # rotational inertia about the com, world: R I R^T w
-            bx = pose_r[b, 0, 0] * wx + pose_r[b, 1, 0] * wy + pose_r[b, 2, 0] * wz
-            by = pose_r[b, 0, 1] * wx + pose_r[b, 1, 1] * wy + pose_r[b, 2, 1] * wz
-            bz = pose_r[b, 0, 2] * wx + pose_r[b, 1, 2] * wy + pose_r[b, 2, 2] * wz
-            ix = inertia[b, 0, 0] * bx + inertia[b, 0, 1] * by + inertia[b, 0, 2] * bz
-            iy = inertia[b, 1, 0] * bx + inertia[b, 1, 1] * by + inertia[b, 1, 2] * bz
-            iz = inertia[b, 2, 0] * bx + inertia[b, 2, 1] * by + inertia[b, 2, 2] * bz
-            kx = pose_r[b, 0, 0] * ix + pose_r[b, 0, 1] * iy + pose_r[b, 0, 2] * iz
-            ky = pose_r[b, 1, 0] * ix + pose_r[b, 1, 1] * iy + pose_r[b, 1, 2] * iz
-            kz = pose_r[b, 2, 0] * ix + pose_r[b, 2, 1] * iy + pose_r[b, 2, 2] * iz
-            # angular momentum about the origin: I_c w + c x l
-            kx += cy * lz - cz * ly
-            ky += cz * lx - cx * lz
-            kz += cx * ly - cy * lx
-            mom[b, 0], mom[b, 1], mom[b, 2] = lx, ly, lz
-            mom[b, 3], mom[b, 4], mom[b, 5] = kx, ky, kz
-            # gravity as the base accelerating by -g: force m a0 at the com
-            fx, fy, fz = m_b * g0, m_b * g1, m_b * g2
-            grav[b, 0], grav[b, 1], grav[b, 2] = fx, fy, fz
-            grav[b, 3] = cy * fz - cz * fy
-            grav[b, 4] = cz * fx - cx * fz
-            grav[b, 5] = cx * fy - cy * fx
-        for b in range(nb - 1, -1, -1):
-            s = motion[b]
-            vx, vy, vz = vel[b, 0], vel[b, 1], vel[b, 2]
-            wx, wy, wz = vel[b, 3], vel[b, 4], vel[b, 5]
-            lx, ly, lz = mom[b, 0], mom[b, 1], mom[b, 2]
-            kx, ky, kz = mom[b, 3], mom[b, 4], mom[b, 5]
-            # v_b x* H_b = (w x l, v x l + w x k): S . (v x* H) = -(C^T v)_b
-            c0 = wy * lz - wz * ly
-            c1 = wz * lx - wx * lz
-            c2 = wx * ly - wy * lx
-            c3 = vy * lz - vz * ly + wy * kz - wz * ky
-            c4 = vz * lx - vx * lz + wz * kx - wx * kz
-            c5 = vx * ly - vy * lx + wx * ky - wy * kx
-            p = s[0] * lx + s[1] * ly + s[2] * lz + s[3] * kx + s[4] * ky + s[5] * kz
-            g = s[0] * grav[b, 0] + s[1] * grav[b, 1] + s[2] * grav[b, 2]
-            g += s[3] * grav[b, 3] + s[4] * grav[b, 4] + s[5] * grav[b, 5]
-            ct = s[0] * c0 + s[1] * c1 + s[2] * c2 + s[3] * c3 + s[4] * c4 + s[5] * c5
-            index = velocity_index[b]
-            momentum[k, index] = p
-            other[k, index] = g + ct
-            lam = parent[b]
-            if lam >= 0:
-                for i in range(6):
-                    mom[lam, i] += mom[b, i]
-                    grav[lam, i] += grav[b, i]
     return momentum, other
 
 
@@ -349,29 +461,11 @@ def chain_jacobian_batch(
 ) -> np.ndarray:  # pragma: no cover - compiled
     """Return the tip's translational Jacobian (world axes): ``q`` (N, nv) -> (N, 3, nv)."""
     n_samples, nv = q.shape
-    nb = parent.size
-    pose_r = np.empty((nb, 3, 3))
-    pose_p = np.empty((nb, 3))
-    motion = np.empty((nb, 6))
-    scratch_m = np.empty((3, 3))
-    scratch_o = np.empty(3)
+    work = np.empty(36 * parent.size + 12)
     out = np.zeros((n_samples, 3, nv))
     for k in range(n_samples):
-        _forward_kinematics(
-            q[k], parent, kind, axis, rotation, translation, velocity_index, pose_r, pose_p,
-            motion, scratch_m, scratch_o,
-        )  # fmt: skip
-        px, py, pz = pose_p[tip_body, 0], pose_p[tip_body, 1], pose_p[tip_body, 2]
-        for c in range(3):
-            px += pose_r[tip_body, 0, c] * tip_translation[c]
-            py += pose_r[tip_body, 1, c] * tip_translation[c]
-            pz += pose_r[tip_body, 2, c] * tip_translation[c]
-        for b in range(nb):
-            if tip_support[b] == 0:
-                continue
-            index = velocity_index[b]
-            wx, wy, wz = motion[b, 3], motion[b, 4], motion[b, 5]
-            out[k, 0, index] = motion[b, 0] + wy * pz - wz * py
-            out[k, 1, index] = motion[b, 1] + wz * px - wx * pz
-            out[k, 2, index] = motion[b, 2] + wx * py - wy * px
+        chain_kinematics_into(q[k], parent, kind, axis, rotation, translation, velocity_index, work)
+        chain_tip_jacobian_into(
+            parent, velocity_index, tip_body, tip_translation, tip_support, work, out[k]
+        )
     return out

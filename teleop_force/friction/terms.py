@@ -14,7 +14,9 @@ friction models call it over samples, the streaming estimator once per sample
   distance ``r2`` (its ``exp`` inline, so that loops over wavelets vectorise);
 * :func:`grid_density` and :func:`coverage_trust`: a coverage grid's smoothed density,
   multilinear between cell centres and 0 one cell outside (as ``scipy.ndimage.map_coordinates``
-  with ``order=1, mode="grid-constant"``), and the smoothstep trust ramp over it.
+  with ``order=1, mode="grid-constant"``), and the smoothstep trust ramp over it;
+* :func:`standstill_factor`: the standstill dead band, a ramp of the friction torque to 0
+  while every joint is slower than a band (the Coulomb sign is unknown at rest).
 """
 
 from __future__ import annotations
@@ -105,6 +107,49 @@ def linear_friction_basis(
             w = term_velocity(rows[t], qd[k])
             out[k, 2 * (t - first)] = sign(w)
             out[k, 2 * (t - first) + 1] = w
+    return out
+
+
+# -- the standstill dead band ----------------------------------------------------------------------
+
+
+@njit_cached()
+def standstill_factor(qd: np.ndarray, band_rad_s: float) -> float:  # pragma: no cover - compiled
+    """Scale of the friction torque at the joint velocities ``qd``: a ramp to 0 at standstill.
+
+    ``max_j |qd_j| / band_rad_s`` while every joint is slower than ``band_rad_s``, else 1
+    (also for ``band_rad_s <= 0``, no dead band, and for a NaN velocity). At rest under load
+    the sign of the Coulomb term is unknown; the ramp keeps it from becoming a phantom force.
+    """
+    if not band_rad_s > 0.0:
+        return 1.0
+    fastest = 0.0
+    for j in range(qd.size):
+        speed = abs(qd[j])
+        if not speed < band_rad_s:
+            return 1.0
+        if speed > fastest:
+            fastest = speed
+    return fastest / band_rad_s
+
+
+@njit_cached()
+def standstill_scale_into(
+    qd: np.ndarray, band_rad_s: float, torque: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """``torque *= standstill_factor(qd, band_rad_s)`` in place (one sample's friction)."""
+    factor = standstill_factor(qd, band_rad_s)
+    if factor != 1.0:
+        for j in range(torque.size):
+            torque[j] *= factor
+
+
+@njit_cached()
+def standstill_factors(qd: np.ndarray, band_rad_s: float) -> np.ndarray:  # pragma: no cover
+    """:func:`standstill_factor` of every sample: ``qd`` (N, n) -> (N,)."""
+    out = np.empty(qd.shape[0])
+    for k in range(qd.shape[0]):
+        out[k] = standstill_factor(qd[k], band_rad_s)
     return out
 
 

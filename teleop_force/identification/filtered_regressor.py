@@ -23,13 +23,15 @@ so the model at ``k`` is compared with the filtered torque of sample ``k - torqu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from msgspec import Meta, Struct
 
 from teleop_force.errors import ConfigurationError, DataError, ModelFileError
+from teleop_force.estimation.flags import ESTIMATORS
 from teleop_force.identification.regressor import BaseParameters, RigidBodyRegressor
 from teleop_force.lowpass import (
     DEFAULT_CUTOFF_HZ,
@@ -39,15 +41,45 @@ from teleop_force.lowpass import (
 )
 from teleop_force.schema import Finite
 
+EstimatorName = Literal["filter", "observer"]
+#: The default estimator, its bandwidth and the standstill dead band, chosen by the held-out
+#: contact-force error on simulated plant family one, seeds 1-3 (the sweep and its figures:
+#: docs/results.md, "Force accuracy on unseen data"); family two is reported, never tuned on.
+DEFAULT_ESTIMATOR = "observer"
+DEFAULT_OBSERVER_HZ = 24.0
+DEFAULT_STANDSTILL_BAND_RAD_S = 0.02
+#: What a model file without these fields means: written before the observer existed, its
+#: estimates were the paper's filtered dynamics, without a dead band.
+LEGACY_ESTIMATOR: EstimatorName = "filter"
+LEGACY_OBSERVER_HZ = DEFAULT_CUTOFF_HZ
+LEGACY_STANDSTILL_BAND_RAD_S = 0.0
+
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """How measured signals are filtered before identification and estimation."""
+    """How measured signals are filtered before identification and estimation.
+
+    Attributes:
+        cutoff_hz: Cutoff of the second filter ``L`` (identification and the ``filter``
+            estimator).
+        velocity_cutoff_hz: Cutoff of the pre-filter ``L_v`` of angles and torques.
+        torque_lag_samples: Samples the torque is compared late (0 or 1).
+        warmup_s: Samples before this are left out of fits and figures.
+        estimator: Which estimator turns the model into an external torque: ``filter``
+            (``L`` on both sides of the dynamics) or ``observer`` (the momentum observer).
+        observer_hz: Bandwidth of the momentum observer [Hz] (``K = 2 pi observer_hz``).
+        standstill_band_rad_s: Below this speed of every joint the friction torque ramps to 0
+            (``max_j |qd_j| / band``); 0: no dead band.
+
+    """
 
     cutoff_hz: float = DEFAULT_CUTOFF_HZ
     velocity_cutoff_hz: float = 20.0
     torque_lag_samples: int = 1
     warmup_s: float = 0.25
+    estimator: str = DEFAULT_ESTIMATOR
+    observer_hz: float = DEFAULT_OBSERVER_HZ
+    standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
 
     def __post_init__(self) -> None:
         if not self.cutoff_hz > 0:
@@ -60,6 +92,21 @@ class FilterConfig:
             raise ConfigurationError("torque_lag_samples must be 0 or 1")
         if self.warmup_s < 0:
             raise ConfigurationError("warmup_s must be >= 0")
+        if self.estimator not in ESTIMATORS:
+            raise ConfigurationError(
+                f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}"
+            )
+        if not (self.observer_hz > 0 and math.isfinite(self.observer_hz)):
+            raise ConfigurationError(f"observer_hz must be > 0, got {self.observer_hz}")
+        if not (self.standstill_band_rad_s >= 0 and math.isfinite(self.standstill_band_rad_s)):
+            raise ConfigurationError(
+                f"standstill_band_rad_s must be >= 0, got {self.standstill_band_rad_s}"
+            )
+
+    @property
+    def observer(self) -> bool:
+        """Whether the momentum observer makes the estimates."""
+        return self.estimator == "observer"
 
 
 class FilterEntry(Struct, forbid_unknown_fields=True):
@@ -69,6 +116,10 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
     velocity_cutoff_hz: Finite = FilterConfig.velocity_cutoff_hz
     torque_lag_samples: Annotated[int, Meta(ge=0, le=1)] = FilterConfig.torque_lag_samples
     warmup_s: Finite = FilterConfig.warmup_s
+    # absent in files written before the observer: they meant the paper's filter, no band
+    estimator: EstimatorName = LEGACY_ESTIMATOR
+    observer_hz: Finite = LEGACY_OBSERVER_HZ
+    standstill_band_rad_s: Finite = LEGACY_STANDSTILL_BAND_RAD_S
 
     def __post_init__(self) -> None:
         self.config()  # FilterConfig's own range checks, named after this entry
@@ -77,8 +128,10 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
         """Build the :class:`FilterConfig` (ModelFileError when out of range)."""
         try:
             return FilterConfig(
-                self.cutoff_hz, self.velocity_cutoff_hz, self.torque_lag_samples, self.warmup_s
-            )
+                self.cutoff_hz, self.velocity_cutoff_hz, self.torque_lag_samples, self.warmup_s,
+                estimator=self.estimator, observer_hz=self.observer_hz,
+                standstill_band_rad_s=self.standstill_band_rad_s,
+            )  # fmt: skip
         except ConfigurationError as exc:
             raise ModelFileError(str(exc)) from None
 

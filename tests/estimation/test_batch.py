@@ -64,14 +64,14 @@ def _friction(kind: str):
 _BASE = {}
 
 
-def _omni_model(friction, effects=(), lag: int = 1) -> DynamicModel:
+def _omni_model(friction, effects=(), lag: int = 1, **estimator) -> DynamicModel:
     description = omni_description()
     if "omni" not in _BASE:
         _BASE["omni"] = RigidBodyRegressor(description).find_base_parameters()
     base = _BASE["omni"]
     beta = base.project(full_parameters(description, [SPRING_STIFFNESS_NM_PER_RAD]))
     found = tuple(FoundEffect(spec, np.asarray(c, dtype=float)) for spec, c in effects)
-    config = FilterConfig(torque_lag_samples=lag)
+    config = FilterConfig(torque_lag_samples=lag, **estimator)
     return DynamicModel("omni", 3, config, base, beta, 0 * beta, friction, np.zeros(3), found)
 
 
@@ -132,6 +132,43 @@ def test_batch_equals_streaming_without_lag(palpation) -> None:
     _assert_same(BatchEstimator(model).estimate(t, q, tau), _streamed(model, t, q, tau))
 
 
+#: Estimator choices of the filter configuration: the observer, the dead band, both.
+ESTIMATOR_CHOICES = {
+    "observer": {"estimator": "observer", "observer_hz": 15.0},
+    "band": {"standstill_band_rad_s": 0.05},
+    "observer-band": {"estimator": "observer", "standstill_band_rad_s": 0.05},
+}
+
+
+@pytest.mark.parametrize("choice", sorted(ESTIMATOR_CHOICES))
+@pytest.mark.parametrize("kind", ["cv", "coupled-cv", "wn"])
+def test_batch_equals_streaming_for_the_observer_and_the_band(palpation, kind, choice) -> None:
+    t, q, tau = (x[:2500].copy() for x in palpation)
+    model = _omni_model(_friction(kind), EFFECTS, **ESTIMATOR_CHOICES[choice])
+    starts = (900,)
+    t[900:] = t[900:] - t[900]
+    result = BatchEstimator(model).estimate(t, q, tau, np.array(starts))
+    _assert_same(result, _streamed(model, t, q, tau, starts))
+    default = BatchEstimator(_omni_model(_friction(kind), EFFECTS)).estimate(
+        t, q, tau, np.array(starts)
+    )
+    # the choice changes the estimates (the band only where every joint is slow)
+    assert not np.allclose(result.tau_external_nm, default.tau_external_nm, atol=1e-6)
+    np.testing.assert_array_equal(result.tau_motor_filtered_nm, default.tau_motor_filtered_nm)
+
+
+@pytest.mark.parametrize("lag", [0, 1])
+def test_observer_batch_equals_streaming_for_both_lags(palpation, lag) -> None:
+    t, q, tau = (x[:800] for x in palpation)
+    model = _omni_model(_friction("coupled-cv"), EFFECTS, lag=lag, estimator="observer")
+    result = BatchEstimator(model).estimate(t, q, tau)
+    _assert_same(result, _streamed(model, t, q, tau))
+    np.testing.assert_allclose(
+        result.tau_model_filtered_nm + result.tau_external_nm, result.tau_motor_filtered_nm,
+        rtol=0.0, atol=1e-15,
+    )  # fmt: skip
+
+
 class _SmoothCoulomb(FrictionModel):
     """A friction without a term encoding: the estimators evaluate it by its batch methods."""
 
@@ -150,10 +187,11 @@ class _SmoothCoulomb(FrictionModel):
         return {"kind": self.kind, "parameters": self.parameters.tolist()}
 
 
-def test_friction_without_a_term_encoding(palpation) -> None:
+@pytest.mark.parametrize("choice", [None, "observer-band"])
+def test_friction_without_a_term_encoding(palpation, choice) -> None:
     t, q, tau = (x[:1200] for x in palpation)
     friction = _SmoothCoulomb(3, np.array([0.02, 0.015, 0.01]))
-    model = _omni_model(friction, EFFECTS)
+    model = _omni_model(friction, EFFECTS, **ESTIMATOR_CHOICES.get(choice, {}))
     result = BatchEstimator(model).estimate(t, q, tau, np.array([500]))
     _assert_same(result, _streamed(model, t, q, tau, (500,)))
 

@@ -1,11 +1,27 @@
-import numpy as np
+import argparse
+import json
 
-from teleop_force.estimation.estimator import ForceEstimator
+import numpy as np
+import pytest
+
+from teleop_force.errors import ConfigurationError, ModelFileError
+from teleop_force.estimation.batch import BatchEstimator
+from teleop_force.estimation.estimator import (
+    ForceEstimator,
+    estimator_from_args,
+    estimator_metadata,
+    with_estimator,
+    with_recorded_estimator,
+)
+from teleop_force.estimation.flags import add_estimator_arguments
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
 from teleop_force.identification.regressor import RigidBodyRegressor, full_parameters
 from teleop_force.robots.omni import SPRING_STIFFNESS_NM_PER_RAD, omni_description
+
+#: The paper's filtered dynamics without a dead band: what identification's batch form computes.
+PAPER_FILTER = FilterConfig(estimator="filter", standstill_band_rad_s=0.0)
 
 
 def _model() -> DynamicModel:
@@ -18,7 +34,7 @@ def _model() -> DynamicModel:
         description.friction_inputs,
         np.array([0.02, 0.002, 0.02, 0.01, 0.003, 0.004, 0.01, 0.002, 0.018, 0.005]),
     )
-    return DynamicModel("omni", 3, FilterConfig(), base, beta, 0 * beta, friction, np.zeros(3))
+    return DynamicModel("omni", 3, PAPER_FILTER, base, beta, 0 * beta, friction, np.zeros(3))
 
 
 def _motion(n: int = 1500):
@@ -79,3 +95,79 @@ def test_singular_jacobian_is_reported_not_divided() -> None:
     est = estimator.update(0.0, q, np.zeros(3))
     assert est.singular
     assert np.all(np.isnan(est.force_tip_in_base_n))
+
+
+def test_estimator_choice_round_trips_through_the_model_file(tmp_path) -> None:
+    model = with_estimator(_model(), "observer", 12.5, 0.01)
+    assert model.filter_config.observer and model.filter_config.observer_hz == 12.5
+    path = tmp_path / "model.json"
+    model.save(path)
+    saved = json.loads(path.read_text())["filter"]
+    assert saved["estimator"] == "observer" and saved["observer_hz"] == 12.5
+    loaded = DynamicModel.load(path)
+    assert loaded.filter_config == model.filter_config
+    t, q, tau = _motion(400)
+    np.testing.assert_array_equal(
+        BatchEstimator(loaded).estimate(t, q, tau).tau_external_nm,
+        BatchEstimator(model).estimate(t, q, tau).tau_external_nm,
+    )
+
+
+def test_a_model_file_without_the_choice_reads_as_the_filter(tmp_path) -> None:
+    model = _model()
+    data = model.to_dict()
+    for key in ("estimator", "observer_hz", "standstill_band_rad_s"):
+        del data["filter"][key]
+    loaded = DynamicModel.from_dict(data)
+    assert loaded.filter_config == FilterConfig(
+        estimator="filter", observer_hz=8.0, standstill_band_rad_s=0.0
+    )
+    assert loaded.filter_config.estimator == "filter"
+    assert loaded.filter_config.standstill_band_rad_s == 0.0
+
+
+@pytest.mark.parametrize(
+    ("key", "value"), [("estimator", "kalman"), ("observer_hz", 0.0), ("observer_hz", -1.0),
+                       ("standstill_band_rad_s", -0.01)],
+)  # fmt: skip
+def test_a_bad_choice_in_the_model_file_is_named(key, value) -> None:
+    data = _model().to_dict()
+    data["filter"][key] = value
+    with pytest.raises(ModelFileError, match=key):
+        DynamicModel.from_dict(data, "model.json")
+
+
+def test_with_estimator_overrides_only_what_is_given() -> None:
+    model = _model()
+    assert with_estimator(model) is model
+    assert with_estimator(model, "filter", FilterConfig.observer_hz) is model
+    observer = with_estimator(model, "observer")
+    assert observer.filter_config.observer_hz == model.filter_config.observer_hz
+    assert observer.filter_config.cutoff_hz == model.filter_config.cutoff_hz
+    assert observer.friction is model.friction
+    with pytest.raises(ConfigurationError, match="estimator"):
+        with_estimator(model, "kalman")
+
+
+def test_recording_metadata_names_the_estimator_a_replay_runs() -> None:
+    model = with_estimator(_model(), "observer", 20.0, 0.005)
+    metadata = {"model": "m.json", **estimator_metadata(model)}
+    assert all(isinstance(v, str) for v in metadata.values())
+    replayed = with_recorded_estimator(_model(), metadata)
+    assert replayed.filter_config == model.filter_config
+    old = _model()
+    assert with_recorded_estimator(old, {"model": "m.json"}) is old  # older recordings
+    with pytest.raises(ConfigurationError, match="observer_hz"):
+        with_recorded_estimator(old, {"estimator": "observer", "observer_hz": "fast"})
+
+
+def test_estimator_flags_override_the_model() -> None:
+    parser = argparse.ArgumentParser()
+    add_estimator_arguments(parser)
+    model = _model()
+    assert estimator_from_args(model, parser.parse_args([])) is model
+    args = parser.parse_args(["--estimator", "observer", "--observer-hz", "16"])
+    chosen = estimator_from_args(model, args)
+    assert (chosen.filter_config.estimator, chosen.filter_config.observer_hz) == ("observer", 16)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--estimator", "kalman"])

@@ -340,7 +340,7 @@ def test_shared_mtm_residual_loop_on_model_coordinate_friction_transfers():
 def test_shared_mtm_streaming_estimate_equals_batch_and_stays_finite():
     """The streaming estimator on an identified MTM model (its elbow mass comes out negative
     as a base parameter): the same filtered model torque as the batch prediction, finite."""
-    from teleop_force.estimation.estimator import ForceEstimator
+    from teleop_force.estimation.estimator import ForceEstimator, with_estimator
     from teleop_force.identification.pipeline import identify_model, prepare
 
     folder = require("dvrk_mtm")
@@ -348,6 +348,8 @@ def test_shared_mtm_streaming_estimate_equals_batch_and_stays_finite():
     test = _first(read_mtm_csv(folder / "mtm_traj_two_results.csv").recording, 1500)
     description = dvrk_mtm_description()
     model, _ = identify_model([train], description, "model-cv", offsets=True)
+    # the paper's filter without a dead band is what the batch prediction computes
+    model = with_estimator(model, "filter", standstill_band_rad_s=0.0)
     prepared, _ = prepare([test], description, model.filter_config, model.base)
     batch = model.predict_filtered_torque(prepared[0].signals, test.tau_nm)
     estimator = ForceEstimator(model)

@@ -1,0 +1,120 @@
+"""Test-stand identification and estimation: the default friction, logs as labs write them,
+the force sensor kept out of every fit, and the held-out split."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from teleop_force.cli.main import main
+from teleop_force.errors import DataError
+from teleop_force.estimation import teststand as stand
+from teleop_force.estimation.teststand import (
+    estimate_forces,
+    free_phase_mask,
+    identify_teststand,
+    identify_teststand_command,
+)
+from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.io.interchange_csv import Recording
+from teleop_force.io.teststand_logs import NATIVE_FILES, read_teststand_folder
+from teleop_force.reports.teststand_heldout import GOAL_RATIO, held_out_study
+from teleop_force.robots import teststand as stand_robot
+from tests.shared_data import require
+
+#: What the refused 23 s log carried: positions, measured joint torques, the ATI force.
+LAB_LOG_ROLES = ("q", "tau_measured", "ati_force")
+
+
+def _lab_log(tmp_path: Path) -> Path:
+    """The shared set copied with only the files of the refused log."""
+    folder = tmp_path / "lab_log"
+    shutil.copytree(require("teststand"), folder)
+    for role, (name, _) in NATIVE_FILES.items():
+        if role not in LAB_LOG_ROLES:
+            (folder / name).chmod(0o644)
+            (folder / name).unlink()
+    return folder
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(x**2)))
+
+
+def test_default_friction_identifies_a_lab_log_and_says_it_is_the_cv(tmp_path: Path) -> None:
+    """``identify --robot teststand`` with the default (wn) friction no longer refuses."""
+    folder = _lab_log(tmp_path)
+    recording = read_teststand_folder(folder).recording
+    description = stand_robot.teststand_description()
+    lines: list[str] = []
+    out = tmp_path / "model.json"
+    assert identify_teststand_command([recording], description, "wn", out, lines.append) == 0
+    warnings = [line for line in lines if line.startswith("warning:")]
+    assert len(warnings) == 1 and "Coulomb-viscous fallback" in warnings[0]
+    model = DynamicModel.load(out)
+    assert model.friction.kind == "wn"
+    # no trained ground in 0.1 s of flight: the network's friction is its fitted CV fallback,
+    # the coupled CV fitted with the rigid body, to the last digit
+    wn = identify_teststand(recording, description, stand.TeststandOptions(friction="wn"))
+    cv = identify_teststand(recording, description, stand.TeststandOptions(friction="coupled-cv"))
+    assert wn.details["wn_trained_fraction"] == [0.0, 0.0]
+    np.testing.assert_allclose(wn.model.base_values, cv.model.base_values, rtol=1e-12)
+    f_wn = estimate_forces(wn, recording, description)
+    f_cv = estimate_forces(cv, recording, description)
+    np.testing.assert_allclose(f_wn, f_cv, atol=1e-9)
+    truth = recording.f_tip_in_base_n
+    assert _rms(f_wn[:, 2] - truth[:, 2]) < 1.2  # in-sample, about 0.95 N with measured torques
+
+
+def test_the_force_sensor_only_picks_the_phases_without_contact() -> None:
+    """Changing the ATI force inside contact (still contact) changes nothing identified."""
+    recording = read_teststand_folder(require("teststand")).recording
+    truth = recording.f_tip_in_base_n
+    contact = np.linalg.norm(truth, axis=1) >= 1.0
+    other = truth.copy()
+    other[contact] *= np.linspace(1.0, 3.0, int(contact.sum()))[:, None]
+    changed = Recording(recording.t_s, recording.q_rad, recording.tau_nm, other)
+    description = stand_robot.teststand_description()
+    a = identify_teststand(recording, description)
+    b = identify_teststand(changed, description)
+    np.testing.assert_array_equal(a.model.base_values, b.model.base_values)
+    np.testing.assert_array_equal(a.model.friction.parameters, b.model.friction.parameters)
+
+
+def test_identifying_without_the_force_sensor_names_its_file() -> None:
+    t = np.arange(50) * 1e-3
+    recording = Recording(t, np.zeros((50, 2)), np.zeros((50, 2)))
+    with pytest.raises(DataError, match=r"ati_force\.dat"):
+        free_phase_mask(recording, 1.0, 0.02)
+
+
+def test_held_out_third_beats_the_urdf_and_keeps_in_sample_apart() -> None:
+    report = held_out_study(require("teststand"))
+    assert report.train_samples + report.test_samples == 2991
+    assert report.test_samples == 997 and report.free_samples > 50
+    # what this version reaches (0.82 of the URDF's error): better than the URDF, short of
+    # the issue's 2/3 goal, and reported as such
+    assert report.ratio < 0.9
+    assert report.goal_met == (report.ratio <= GOAL_RATIO)
+    assert report.ours.rms_n < report.urdf.rms_n < report.lab.rms_n  # type: ignore[union-attr]
+    # the split: the lag is the filters' alone, the same for both models
+    assert report.ours.lag_n == pytest.approx(report.urdf.lag_n)
+    split = np.sqrt(report.ours.lag_n**2 + report.ours.bias_n**2 + report.ours.spread_n**2)
+    assert split == pytest.approx(report.ours.rms_n, rel=0.25)
+    assert report.standstill_samples > 300  # the leg stands still in most of the last second
+    text = "\n".join(report.lines())
+    assert "in-sample" in text and "held out" in text
+
+
+def test_held_out_command_prints_one_json_object(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = _lab_log(tmp_path)
+    assert main(["teststand-heldout", str(folder), "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["torque_source"] == "measured"
+    assert payload["lab"] is None and payload["goal_ratio"] == pytest.approx(2 / 3)
+    assert payload["ours"]["rms_n"] < payload["urdf"]["rms_n"]
+    assert main(["teststand-heldout", str(folder), "--train-fraction", "1.5"]) == 2
