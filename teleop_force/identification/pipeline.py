@@ -6,6 +6,9 @@ guards of :mod:`teleop_force.identification.rigid_body_fit`: zero-phase smoothed
 low-speed friction terms, then the CV friction refitted on the causal signals with the rigid
 body fixed); a wavelet-network friction is then trained on what the rigid-body model leaves
 (the filtered friction torque), with the stage-one coupled CV kept as its off-ground fallback.
+Identification with the network never refuses for lack of data: where its coverage map has
+no trained ground the model's friction is that fitted CV, and ``FitReport.details["warning"]``
+says so in one line (the command line prints it as ``warning: ...``).
 """
 
 from __future__ import annotations

@@ -31,8 +31,13 @@ NATIVE_FILES = {
     "height": ("dg_hopper_teststand-height_sensors.dat", 1),
     "lab_estimate": ("dg_est_f_hopper-sout.dat", 3),
 }
-REQUIRED_ROLES = ("q", "qd", "tau_measured")
+#: Roles without which nothing can be read (no other file replaces them).
+REQUIRED_ROLES = ("q",)
 TORQUE_SOURCES = ("measured", "target")
+#: The file of each torque source.
+TORQUE_ROLES = {"target": "tau_target", "measured": "tau_measured"}
+#: Velocity sources: the lab's velocity log, or the backward difference of the positions.
+VELOCITY_SOURCES = ("logged", "derived")
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,8 +49,11 @@ class TeststandLog:
             and, when the ATI file is there, the ground-truth force of the foot on the ground
             (project convention: the negated ATI force).
         ticks: Controller tick of every sample.
-        qd_rad_s: Measured joint velocities.
-        tau_measured_nm: Measured joint torques (motor current x torque constant x gear).
+        qd_rad_s: Joint velocities: logged, or (``velocity_source == "derived"``, when
+            ``joint_velocities.dat`` is absent) the backward difference of the positions over
+            the ticks (0 at the first sample).
+        tau_measured_nm: Measured joint torques (motor current x torque constant x gear;
+            ``None`` when the file is absent).
         tau_target_nm: Commanded joint torques (``None`` when the file is absent).
         ati_torque_nm: ATI torques as logged (``None`` when absent).
         contact_sensor: Foot contact sensor value (about 1 with the foot in the air, near 0
@@ -54,13 +62,16 @@ class TeststandLog:
         lab_estimate_n: The lab's force estimate, project convention (``None`` when absent).
         torque_source: ``measured`` or ``target``: which torques ``recording`` carries.
         dropped_ticks: Per file, ticks present in it but not in every file (dropped).
+        velocity_source: ``logged`` or ``derived`` (see ``qd_rad_s``).
+        warnings: What reading had to replace (a torque source that was asked for by default
+            but is absent), one sentence each; :meth:`note` carries them.
 
     """
 
     recording: Recording
     ticks: np.ndarray
     qd_rad_s: np.ndarray
-    tau_measured_nm: np.ndarray
+    tau_measured_nm: np.ndarray | None
     tau_target_nm: np.ndarray | None
     ati_torque_nm: np.ndarray | None
     contact_sensor: np.ndarray | None
@@ -68,6 +79,8 @@ class TeststandLog:
     lab_estimate_n: np.ndarray | None
     torque_source: str
     dropped_ticks: dict[str, int] = field(default_factory=dict)
+    velocity_source: str = "logged"
+    warnings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = self.recording.n_samples
@@ -75,6 +88,12 @@ class TeststandLog:
             raise DataError(
                 f"torque_source must be one of {TORQUE_SOURCES}", path=self.recording.source
             )
+        if self.velocity_source not in VELOCITY_SOURCES:
+            raise DataError(
+                f"velocity_source must be one of {VELOCITY_SOURCES}", path=self.recording.source
+            )
+        if getattr(self, f"tau_{self.torque_source}_nm") is None:
+            raise DataError(f"no {self.torque_source} torques to carry", path=self.recording.source)
         if self.ticks.shape != (n,):
             raise DataError("ticks and samples differ in number", path=self.recording.source)
         for name in (
@@ -93,11 +112,19 @@ class TeststandLog:
                 )
 
     def note(self) -> str:
-        """One line: samples kept, ticks dropped per file."""
+        """One line: samples kept, ticks dropped per file, what was derived, any warning."""
         dropped = ", ".join(f"{k} {v}" for k, v in self.dropped_ticks.items() if v)
+        derived = (
+            f"; velocities derived from the positions (no {NATIVE_FILES['qd'][0]})"
+            if self.velocity_source == "derived"
+            else ""
+        )
         return (
             f"{self.recording.source}: {self.recording.n_samples} samples aligned on the tick "
-            f"({self.torque_source} torques)" + (f"; ticks dropped: {dropped}" if dropped else "")
+            f"({self.torque_source} torques)"
+            + (f"; ticks dropped: {dropped}" if dropped else "")
+            + derived
+            + "".join(f"; warning: {w}" for w in self.warnings)
         )
 
 
@@ -157,32 +184,43 @@ def read_dat(path: Path, n_values: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_teststand_folder(
-    folder: str | os.PathLike[str], torque_source: str = "target"
+    folder: str | os.PathLike[str], torque_source: str | None = None
 ) -> TeststandLog:
     """Read the test stand's ``.dat`` logs from ``folder`` and align them on the tick.
 
     Only ticks present in every file that is there are kept (the files start together but
     end at slightly different ticks). ``torque_source`` chooses the torques the recording
-    carries: ``target`` (the default: the torques sent to the motor drivers, the project's
-    convention of a commanded torque acting over the next sample, and the one a sensorless
-    estimator always has) or ``measured`` (motor current x torque constant x gear: the same
-    signal plus current-sensing noise; on the published set it gives a slightly larger force
-    error, see ``docs/robots.md``).
+    carries: ``target`` (the torques sent to the motor drivers, the project's convention of a
+    commanded torque acting over the next sample, and the one a sensorless estimator always
+    has) or ``measured`` (motor current x torque constant x gear: the same signal plus
+    current-sensing noise; on the published set it gives a slightly larger force error, see
+    ``docs/robots.md``). ``None`` (the default) takes ``target`` when its file is there, else
+    ``measured`` with a warning (:attr:`TeststandLog.warnings`, in :meth:`TeststandLog.note`).
+
+    Logs as labs write them: without ``joint_velocities.dat`` the velocities are derived from
+    the positions; the ATI, contact, height and lab-estimate files are optional.
+
+    Raises:
+        DataError: naming the missing file when the positions, the torque source asked for,
+            or both torque files are absent, and naming file and row for a bad row.
+
     """
     folder = Path(folder)
-    if torque_source not in TORQUE_SOURCES:
+    if torque_source is not None and torque_source not in TORQUE_SOURCES:
         raise DataError(
             f"torque source must be one of {', '.join(TORQUE_SOURCES)}, got {torque_source!r}"
         )
     if not folder.is_dir():
         raise DataError("not a folder of test-stand logs", path=folder)
+    present = {role for role, (name, _) in NATIVE_FILES.items() if (folder / name).is_file()}
+    for role in REQUIRED_ROLES:
+        if role not in present:
+            raise DataError(f"missing test-stand log {NATIVE_FILES[role][0]}", path=folder)
+    source, warnings = _torque_source(folder, present, torque_source)
     logs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for role, (name, n_values) in NATIVE_FILES.items():
-        path = folder / name
-        if path.is_file():
-            logs[role] = read_dat(path, n_values)
-        elif role in REQUIRED_ROLES or (role == "tau_target" and torque_source == "target"):
-            raise DataError(f"missing test-stand log {name}", path=folder)
+        if role in present:
+            logs[role] = read_dat(folder / name, n_values)
     common = logs["q"][0]
     for ticks, _ in logs.values():
         common = np.intersect1d(common, ticks)
@@ -193,25 +231,58 @@ def read_teststand_folder(
     for role, (ticks, values) in logs.items():
         aligned[role] = values[np.searchsorted(ticks, common)]
         dropped[role] = int(ticks.size - common.size)
-    tau = aligned["tau_measured"] if torque_source == "measured" else aligned["tau_target"]
     force = -aligned["ati_force"] if "ati_force" in aligned else None
+    t_s = (common - common[0]) * TICK_S
     recording = Recording(
-        t_s=(common - common[0]) * TICK_S,
+        t_s=t_s,
         q_rad=aligned["q"],
-        tau_nm=tau,
+        tau_nm=aligned[TORQUE_ROLES[source]],
         f_tip_in_base_n=force,
         source=folder,
     )
+    qd = aligned["qd"] if "qd" in aligned else velocity_from_positions(t_s, aligned["q"])
     return TeststandLog(
         recording=recording,
         ticks=common,
-        qd_rad_s=aligned["qd"],
-        tau_measured_nm=aligned["tau_measured"],
+        qd_rad_s=qd,
+        tau_measured_nm=aligned.get("tau_measured"),
         tau_target_nm=aligned.get("tau_target"),
         ati_torque_nm=aligned.get("ati_torque"),
         contact_sensor=aligned["contact"][:, 0] if "contact" in aligned else None,
         height_m=aligned["height"][:, 0] if "height" in aligned else None,
         lab_estimate_n=-aligned["lab_estimate"] if "lab_estimate" in aligned else None,
-        torque_source=torque_source,
+        torque_source=source,
         dropped_ticks=dropped,
+        velocity_source="logged" if "qd" in aligned else "derived",
+        warnings=warnings,
     )
+
+
+def velocity_from_positions(t_s: np.ndarray, q_rad: np.ndarray) -> np.ndarray:
+    """Backward-difference velocity ``(q[k] - q[k-1]) / (t[k] - t[k-1])``, 0 at the first sample.
+
+    The same velocity the project's filters compute from the positions (before their
+    low-pass): the model never reads the lab's velocity log, only ``TeststandLog.qd_rad_s``.
+    """
+    qd = np.zeros_like(q_rad, dtype=float)
+    qd[1:] = np.diff(q_rad, axis=0) / np.diff(t_s)[:, None]
+    return qd
+
+
+def _torque_source(
+    folder: Path, present: set[str], asked: str | None
+) -> tuple[str, tuple[str, ...]]:
+    """Return the torque source to read, and the warning when it is not the default one."""
+    if asked is not None:
+        if TORQUE_ROLES[asked] not in present:
+            name = NATIVE_FILES[TORQUE_ROLES[asked]][0]
+            raise DataError(f"missing test-stand log {name} ({asked} torques)", path=folder)
+        return asked, ()
+    if TORQUE_ROLES["target"] in present:
+        return "target", ()
+    target, measured = (NATIVE_FILES[TORQUE_ROLES[k]][0] for k in ("target", "measured"))
+    if TORQUE_ROLES["measured"] not in present:
+        raise DataError(
+            f"missing test-stand logs {target} and {measured}: no joint torques", path=folder
+        )
+    return "measured", (f"no {target}: the torques are the measured ones ({measured})",)

@@ -129,7 +129,7 @@ def mtm_study(
 
         model_cv = FrictionKind.MODEL_CV
         for label, options in (
-            ("wn + found effects", ResidualOptions()),
+            ("wn + found effects", ResidualOptions(friction=FrictionKind.WN, offsets=False)),
             (MTM_MODEL_CV_EFFECTS_ROW, ResidualOptions(friction=model_cv, offsets=True)),
             (
                 MTM_MOTOR_EFFECTS_ROW,
@@ -427,6 +427,7 @@ def _teststand_sensitivity(
 ) -> dict[str, dict[str, float]]:
     """Errors of the headline estimate identified with other filters and prior weights."""
     from teleop_force.estimation.teststand import (
+        STANDSTILL_BAND_RAD_S,
         TeststandOptions,
         estimate_forces,
         identify_teststand,
@@ -437,7 +438,13 @@ def _teststand_sensitivity(
     for cutoff in (20.0, 40.0):
         for weight in (0.1, 0.3, 1.0):
             variant = TeststandOptions(
-                filter=FilterConfig(cutoff_hz=cutoff, velocity_cutoff_hz=5 * cutoff, warmup_s=0.05),
+                filter=FilterConfig(
+                    cutoff_hz=cutoff,
+                    velocity_cutoff_hz=5 * cutoff,
+                    warmup_s=0.05,
+                    estimator="filter",
+                    standstill_band_rad_s=STANDSTILL_BAND_RAD_S,
+                ),
                 prior_weight=weight,
             )
             model = identify_teststand(data.recording, description, variant)

@@ -13,6 +13,15 @@ and :func:`palpation_protocol` (contact with a soft tissue, for force estimation
 Seeds: a session's ``seed`` feeds both the trajectory (where it is random) and, through
 :class:`numpy.random.SeedSequence`, the plant's actuator noise; the same seed gives the same
 arrays, bit for bit.
+
+Families: every function takes ``family=`` (:class:`~teleop_force.simulation.families.PlantFamily`,
+default ``ONE``, the :class:`SimulatedOmni`, unchanged). ``family=PlantFamily.TWO`` runs
+:class:`~teleop_force.simulation.plant_two.SimulatedOmniTwo`: ``plant_config`` is then a
+:class:`~teleop_force.simulation.plant_two.PlantTwoConfig` (default: the arm of instance
+``seed``; pass one to keep the arm and vary the session's seed), the default surface of
+:func:`palpation_protocol` is a :class:`~teleop_force.simulation.floor_contact.HuntCrossleyFloor`,
+and the true friction is recorded tick by tick (LuGre has a state). ``tip_mass_kg`` adds a
+payload at the tip on either family (:mod:`~teleop_force.simulation.payload`).
 """
 
 from __future__ import annotations
@@ -25,10 +34,16 @@ from time import perf_counter
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.robots import omni
 from teleop_force.simulation.contact import PlaneContact
 from teleop_force.simulation.effects import PlantEffect, total_effect_torque
+from teleop_force.simulation.families import PlantFamily, default_contact, make_plant
+from teleop_force.simulation.floor_contact import HuntCrossleyFloor
+from teleop_force.simulation.lugre_friction import LuGreFriction
+from teleop_force.simulation.payload import check_tip_mass, with_tip_payload
 from teleop_force.simulation.pid import PID, PIDGains
 from teleop_force.simulation.plant import PlantConfig, SimulatedOmni
+from teleop_force.simulation.plant_two import PlantTwoConfig, SimulatedOmniTwo
 from teleop_force.simulation.trajectories import (
     Trajectory,
     friction_trajectory,
@@ -69,15 +84,18 @@ class SimulatedSession:
         q_ref_rad: Reference angles (N, 3).
         qd_ref_rad_s: Reference velocities (N, 3).
         tau_applied_nm: Torque that acted on the plant: commanded plus actuator noise (N, 3).
-        tau_friction_true_nm: True friction torque at the true velocities (N, 3).
+        tau_friction_true_nm: True friction torque at the true velocities (N, 3); family two:
+            the LuGre torque at the sample's state.
         tau_effects_true_nm: Sum of the switched-on effects' torques (N, 3).
         seed: The session's seed.
         name: Protocol name (``rigid-body``, ``friction-equal``...), or ``custom``.
         friction: The plant's true friction (``None``: frictionless).
         effects: The plant's switched-on effects.
-        contact: The tissue, or ``None``.
+        contact: The tissue (family two: the floor), or ``None``.
         clipped_ticks: Number of ticks in which a torque command was clipped.
         wall_time_s: How long the simulation took.
+        family: The plant family (``"one"`` or ``"two"``).
+        tip_mass_kg: The payload at the tip [kg].
 
     """
 
@@ -94,11 +112,13 @@ class SimulatedSession:
     tau_effects_true_nm: np.ndarray
     seed: int
     name: str = "custom"
-    friction: TrueFriction | None = None
+    friction: TrueFriction | LuGreFriction | None = None
     effects: tuple[PlantEffect, ...] = field(default_factory=tuple)
-    contact: PlaneContact | None = None
+    contact: PlaneContact | HuntCrossleyFloor | None = None
     clipped_ticks: int = 0
     wall_time_s: float = 0.0
+    family: str = PlantFamily.ONE.value
+    tip_mass_kg: float = 0.0
 
     def __post_init__(self) -> None:
         t = np.array(self.t_s, dtype=float)
@@ -154,15 +174,18 @@ def simulate_session(
     seed: int = 0,
     *,
     effects: Sequence[PlantEffect] = (),
-    contact: PlaneContact | None = None,
-    plant_config: PlantConfig | None = None,
+    contact: PlaneContact | HuntCrossleyFloor | None = None,
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
     pid_gains: PIDGains | None = None,
     name: str = "custom",
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
 ) -> SimulatedSession:
     """Run the PID-controlled plant along ``trajectory`` for ``duration_s`` at the control rate.
 
     The plant starts at rest at the reference's start, and the PID's integral is preset to the
-    true holding torque there (a bumpless start).
+    true holding torque there (a bumpless start). ``family`` and ``tip_mass_kg``: see the
+    module docstring.
     """
     if not (math.isfinite(duration_s) and duration_s > 0.0):
         raise ConfigurationError(f"duration_s must be > 0, got {duration_s}")
@@ -172,6 +195,24 @@ def simulate_session(
         )
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ConfigurationError(f"seed must be an integer >= 0, got {seed!r}")
+    family = PlantFamily.parse(family)
+    tip_mass_kg = check_tip_mass(tip_mass_kg)
+    if family is PlantFamily.TWO:
+        return _simulate_family_two(
+            trajectory,
+            duration_s,
+            int(seed),
+            effects=effects,
+            contact=contact,
+            plant_config=plant_config,
+            pid_gains=pid_gains,
+            name=name,
+            tip_mass_kg=tip_mass_kg,
+        )
+    if plant_config is not None and not isinstance(plant_config, PlantConfig):
+        raise ConfigurationError("plant family one takes a PlantConfig")
+    if contact is not None and not isinstance(contact, PlaneContact):
+        raise ConfigurationError("plant family one takes a PlaneContact")
     config = plant_config if plant_config is not None else PlantConfig()
     gains = pid_gains if pid_gains is not None else PIDGains.omni()
     dt = config.control_period_s
@@ -187,6 +228,9 @@ def simulate_session(
         contact=contact,
         q0_rad=q_ref[0],
         qd0_rad_s=qd_ref[0],
+        description=(
+            with_tip_payload(omni.omni_description(), tip_mass_kg) if tip_mass_kg > 0.0 else None
+        ),
     )
     pid = PID(gains, n_joints=3, control_period_s=dt)
     pid.reset(integral_nm=plant.holding_torque_nm())
@@ -227,6 +271,82 @@ def simulate_session(
         contact=contact,
         clipped_ticks=clipped,
         wall_time_s=perf_counter() - started,
+        family=PlantFamily.ONE.value,
+        tip_mass_kg=tip_mass_kg,
+        **arrays,
+    )
+
+
+def _simulate_family_two(
+    trajectory: Trajectory,
+    duration_s: float,
+    seed: int,
+    *,
+    effects: Sequence[PlantEffect],
+    contact: PlaneContact | HuntCrossleyFloor | None,
+    plant_config: PlantConfig | PlantTwoConfig | None,
+    pid_gains: PIDGains | None,
+    name: str,
+    tip_mass_kg: float,
+) -> SimulatedSession:
+    """:func:`simulate_session` on plant family two (same loop; friction recorded per tick)."""
+    if plant_config is not None and not isinstance(plant_config, PlantTwoConfig):
+        raise ConfigurationError("plant family two takes a PlantTwoConfig")
+    config = plant_config if plant_config is not None else PlantTwoConfig(instance_seed=seed)
+    gains = pid_gains if pid_gains is not None else PIDGains.omni()
+    dt = config.control_period_s
+    n = max(1, round(duration_s / dt))
+    t = np.arange(n) * dt
+    q_ref, qd_ref = trajectory.sample(t)
+
+    started = perf_counter()
+    plant = make_plant(
+        PlantFamily.TWO,
+        seed=np.random.SeedSequence(seed).spawn(1)[0],
+        effects=effects,
+        contact=contact,
+        tip_mass_kg=tip_mass_kg,
+        config=config,
+        q0_rad=q_ref[0],
+        qd0_rad_s=qd_ref[0],
+    )
+    if not isinstance(plant, SimulatedOmniTwo):  # pragma: no cover - make_plant's contract
+        raise ConfigurationError("make_plant(TWO) did not return a SimulatedOmniTwo")
+    pid = PID(gains, n_joints=3, control_period_s=dt)
+    pid.reset(integral_nm=plant.holding_torque_nm())
+    arrays = {name_: np.empty((n, 3)) for name_ in _ARRAY_FIELDS}
+    q_meas, tau_cmd, force = arrays["q_rad"], arrays["tau_nm"], arrays["f_tip_in_base_n"]
+    q_true, qd_true = arrays["q_true_rad"], arrays["qd_true_rad_s"]
+    tau_applied, friction = arrays["tau_applied_nm"], arrays["tau_friction_true_nm"]
+    with plant:
+        for k in range(n):
+            state = plant.read()
+            command = plant.command_torque(pid.update(q_ref[k], state.q_rad, qd_ref[k]))
+            q_meas[k] = state.q_rad
+            tau_cmd[k] = command.tau_nm
+            force[k] = state.f_tip_in_base_n
+            q_true[k] = plant.q_true_rad
+            qd_true[k] = plant.qd_true_rad_s
+            friction[k] = plant.friction_torque_nm()
+            plant.step()
+            tau_applied[k] = plant.tau_applied_nm
+        clipped = plant.clip_count
+    arrays["q_ref_rad"] = q_ref
+    arrays["qd_ref_rad_s"] = qd_ref
+    arrays["tau_effects_true_nm"] = total_effect_torque(
+        tuple(effects), t, q_true, qd_true, tau_applied
+    )
+    return SimulatedSession(
+        t_s=t,
+        seed=seed,
+        name=name,
+        friction=plant.true_friction,
+        effects=tuple(effects),
+        contact=plant.contact,
+        clipped_ticks=clipped,
+        wall_time_s=perf_counter() - started,
+        family=PlantFamily.TWO.value,
+        tip_mass_kg=plant.config.tip_mass_kg,
         **arrays,
     )
 
@@ -236,8 +356,10 @@ def rigid_body_protocol(
     seed: int = 0,
     *,
     effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | None = None,
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
     pid_gains: PIDGains | None = None,
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
 ) -> SimulatedSession:
     """Paper IV-A: 4 minutes of 4 sinusoids per joint at 0.5-2 Hz.
 
@@ -251,6 +373,8 @@ def rigid_body_protocol(
         effects=effects,
         plant_config=plant_config,
         pid_gains=pid_gains,
+        family=family,
+        tip_mass_kg=tip_mass_kg,
         name="rigid-body",
     )
 
@@ -261,8 +385,10 @@ def friction_protocol(
     seed: int = 0,
     *,
     effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | None = None,
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
     pid_gains: PIDGains | None = None,
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
 ) -> SimulatedSession:
     """Paper IV-B experiments 1-2: slow sinusoids (<= 0.7 Hz), joints 2-3 moving ``mode``.
 
@@ -276,6 +402,8 @@ def friction_protocol(
         effects=effects,
         plant_config=plant_config,
         pid_gains=pid_gains,
+        family=family,
+        tip_mass_kg=tip_mass_kg,
         name=f"friction-{mode}",
     )
 
@@ -285,8 +413,10 @@ def teleoperation_protocol(
     seed: int = 0,
     *,
     effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | None = None,
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
     pid_gains: PIDGains | None = None,
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
 ) -> SimulatedSession:
     """Paper IV-B experiment 3: band-limited random motion (an operator moving the master)."""
     return simulate_session(
@@ -296,6 +426,8 @@ def teleoperation_protocol(
         effects=effects,
         plant_config=plant_config,
         pid_gains=pid_gains,
+        family=family,
+        tip_mass_kg=tip_mass_kg,
         name="teleoperation",
     )
 
@@ -306,17 +438,20 @@ def palpation_protocol(
     *,
     surface_y_m: float = -0.06,
     depth_m: float = 0.006,
-    contact: PlaneContact | None = None,
+    contact: PlaneContact | HuntCrossleyFloor | None = None,
     effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | None = None,
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
     pid_gains: PIDGains | None = None,
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
 ) -> SimulatedSession:
     """Palpation of a soft tissue: approach, press ``depth_m`` into it, slide, release; repeat.
 
     ``contact`` defaults to a horizontal :class:`PlaneContact` at ``y = surface_y_m``
-    (300 N/m: the PID's integral drives the tip to the reference depth, ~1.8 N at 6 mm).
+    (300 N/m: the PID's integral drives the tip to the reference depth, ~1.8 N at 6 mm);
+    on family two to a :class:`HuntCrossleyFloor` there (~1.5 N at 6 mm, 3200 N/m^1.5).
     """
-    tissue = contact if contact is not None else PlaneContact.horizontal(surface_y_m)
+    tissue = contact if contact is not None else default_contact(family, surface_y_m)
     trajectory = palpation_trajectory(duration_s, seed, surface_y_m=surface_y_m, depth_m=depth_m)
     return simulate_session(
         trajectory,
@@ -326,5 +461,7 @@ def palpation_protocol(
         contact=tissue,
         plant_config=plant_config,
         pid_gains=pid_gains,
+        family=family,
+        tip_mass_kg=tip_mass_kg,
         name="palpation",
     )

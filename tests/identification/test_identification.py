@@ -34,3 +34,38 @@ def test_least_squares_rejects_nan_and_too_few_samples() -> None:
 def test_relative_rms() -> None:
     x = np.array([[1.0], [-1.0]])
     np.testing.assert_allclose(relative_rms(x, 0.9 * x), [0.1])
+
+
+def test_coverage_warning_names_joints_mostly_off_trained_ground() -> None:
+    from teleop_force.identification.wavelet_training import coverage_warning
+
+    assert coverage_warning(np.array([0.9, 0.5])) is None
+    line = coverage_warning(np.array([0.9, 0.1, 0.0]), ["hip", "knee", "ankle"])
+    assert line is not None and "\n" not in line
+    assert "knee 10%" in line and "ankle 0%" in line and "hip" not in line
+    assert "Coulomb-viscous fallback" in line
+
+
+def test_wavelet_identification_on_little_data_falls_back_to_the_cv_with_a_warning() -> None:
+    """Too little data for a single trusted cell: identified all the same, the CV carrying."""
+    import teleop_force as tf
+    from teleop_force.identification.wavelet_training import (
+        BATCH_MIN_VISITS,
+        batch_min_visits,
+    )
+    from teleop_force.simulation import rigid_body_protocol
+
+    session = rigid_body_protocol(0.6)
+    recording = tf.Recording(session.t_s, session.q_rad, session.tau_nm)
+    model, report = tf.identify_model([recording], tf.omni_description(), "wn")
+    assert model.friction.kind == "wn" and model.friction.fallback is not None
+    assert report.details["wn_trained_fraction"] == [0.0, 0.0, 0.0]
+    assert "fallback" in report.details["warning"]
+    assert 1 <= report.details.get("wn_min_visits", BATCH_MIN_VISITS) <= BATCH_MIN_VISITS
+    # off the trained ground the friction is exactly the fitted coupled CV
+    qd = np.array([[0.3, -0.2, 0.1], [-1.0, 0.5, 0.4]])
+    np.testing.assert_allclose(
+        model.friction_torque(qd), model.friction.fallback.torque(qd), atol=1e-12
+    )
+    assert np.any(model.friction.fallback.parameters != 0.0)
+    assert batch_min_visits(model.friction, np.zeros((0, 3))) == 1

@@ -55,8 +55,8 @@ def test_force_signs_are_converted_to_the_project_convention(tmp_path):
 
 def test_missing_or_bad_logs_name_the_file_and_row(tmp_path):
     _write_logs(tmp_path)
-    (tmp_path / NATIVE_FILES["qd"][0]).unlink()
-    with pytest.raises(DataError, match="joint_velocities"):
+    (tmp_path / NATIVE_FILES["q"][0]).unlink()
+    with pytest.raises(DataError, match="joint_positions"):
         read_teststand_folder(tmp_path)
     _write_logs(tmp_path)
     path = tmp_path / NATIVE_FILES["q"][0]

@@ -1,0 +1,92 @@
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from teleop_force.cli.main import build_parser
+from teleop_force.errors import ConfigurationError
+from teleop_force.identification.filtered_regressor import FilterConfig
+from teleop_force.reports.accuracy import (
+    AccuracyOptions,
+    BatchEstimate,
+    CascadeReference,
+    accuracy_figures,
+    accuracy_table,
+    session_accuracy,
+    write_accuracy_report,
+)
+from teleop_force.simulation import SimulatedSession, floor_touch_protocol
+
+
+@pytest.fixture(scope="module")
+def touching() -> SimulatedSession:
+    return floor_touch_protocol(6.0, 3)
+
+
+def test_figures_of_known_estimates(touching: SimulatedSession) -> None:
+    force = touching.f_tip_in_base_n
+    contact = np.linalg.norm(force, axis=1) > 0.0
+    assert contact.any() and (~contact).any()
+    offset = np.array([0.0, 0.1, 0.0])
+    figures = accuracy_figures(touching, force + offset, force, warmup_s=0.0)
+    assert figures["contact_error_n"] == pytest.approx(0.1)
+    assert figures["free_false_force_n"] == pytest.approx(0.1)
+    assert figures["lag_n"] == 0.0 and figures["bias_n"] == pytest.approx(0.1)
+    assert figures["contact_fraction"] == pytest.approx(contact.mean())
+    rms = np.sqrt(np.mean(np.sum(force[contact] ** 2, axis=1)))
+    assert figures["contact_error_pct"] == pytest.approx(10.0 / rms)
+    exact = accuracy_figures(touching, force, force, warmup_s=0.0)
+    assert exact["contact_error_n"] == 0.0 and exact["free_false_force_n"] == 0.0
+    broken = force.copy()
+    broken[:10] = np.nan
+    assert accuracy_figures(touching, broken, force, 0.0)["nan_samples"] == 10
+    with pytest.raises(ConfigurationError):
+        accuracy_figures(touching, force[:5], force, 0.0)
+
+
+def test_cascade_reference_lags_a_step() -> None:
+    force = np.zeros((400, 3))
+    force[100:, 2] = 1.0
+    out = CascadeReference(FilterConfig(estimator="filter"))(force, 1e-3)
+    assert out[100, 2] == 0.0  # one sample of torque lag
+    assert 0.0 < out[150, 2] < 0.95 and out[-1, 2] > 0.99
+    faster = CascadeReference(FilterConfig(estimator="filter", cutoff_hz=30.0))(force, 1e-3)
+    observer = CascadeReference(FilterConfig(estimator="observer", observer_hz=30.0))(force, 1e-3)
+    np.testing.assert_allclose(observer, faster)  # both first order at 30 Hz after L_v
+    assert faster[150, 2] > out[150, 2]
+
+
+def test_batch_estimate_takes_overrides() -> None:
+    assert BatchEstimate().describe() == "batch (model's filters)"
+    estimate = BatchEstimate({"cutoff_hz": 12.0})
+    assert "cutoff_hz=12.0" in estimate.describe()
+    with pytest.raises(ConfigurationError):
+        AccuracyOptions(identify_duration_s=0.0)
+
+
+def test_harness_on_a_short_session(tmp_path: Path) -> None:
+    options = AccuracyOptions(identify_duration_s=8.0, test_duration_s=5.0)
+    calls = []
+
+    def estimate(model: object, session: SimulatedSession) -> np.ndarray:
+        calls.append(session)
+        return BatchEstimate()(model, session)  # type: ignore[arg-type]
+
+    result = session_accuracy("two", 4, estimate=estimate, options=options)
+    assert result.family == "two" and result.seed == 4
+    assert calls and calls[0].family == "two" and calls[0].name == "floor-touch"
+    assert calls[0].seed != 4  # the test session is not the identification session
+    assert 0.0 < result.contact_fraction < 1.0 and result.rms_contact_force_n > 0.1
+    assert np.isfinite(result.contact_error_n) and result.lag_n > 0.0
+    markdown, path = write_accuracy_report([result], tmp_path, options)
+    assert "| two | 4 |" in markdown.read_text()
+    assert json.loads(path.read_text())["sessions"][0]["seed"] == 4
+    assert accuracy_table([result]).count("\n") == 2
+
+
+def test_cli_flags() -> None:
+    args = build_parser().parse_args(
+        ["accuracy", "--family", "one", "two", "--seeds", "1", "2", "-o", "out", "--json"]
+    )
+    assert args.family == ["one", "two"] and args.seeds == [1, 2] and args.json
