@@ -90,3 +90,25 @@ def run_config_from_args(args: argparse.Namespace) -> RunConfig:
         wait_subscribers_s=args.wait_subscribers,
         stats_json=args.stats_json,
     )
+
+
+def add_plant_effect_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--plant-effect NAME`` and its ``-at-s``, ``-scale``, ``-joint`` (slave and demo)."""
+    parser.add_argument(
+        "--plant-effect", default=None, metavar="NAME",
+        help="switch this simulated effect on in the slave's plant mid-session, for the "
+        "service's residual watch (a name of teleop_force.simulation.EFFECT_NAMES: "
+        "cogging, position-friction, drifting-friction, load-friction, elbow-bump, ...)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--plant-effect-at-s", type=float, default=60.0, metavar="S",
+        help="when, in seconds of the slave's loop (default 60)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--plant-effect-scale", type=float, default=0.1, metavar="X",
+        help="the effect's RMS as a fraction of the joint's RMS commanded torque (default 0.1)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--plant-effect-joint", type=int, default=None, metavar="J",
+        help="the effect's joint, 1-based (default: the effect's own)",
+    )  # fmt: skip

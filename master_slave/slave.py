@@ -48,6 +48,7 @@ import zenoh
 from master_slave.operator import DEFAULT_SURFACE_Y_M, palpation_start_rad
 from master_slave.process_args import (
     RunConfig,
+    add_plant_effect_arguments,
     add_process_arguments,
     loop_config_from_args,
     run_config_from_args,
@@ -62,7 +63,16 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.simulation import PID, PIDGains, PlaneContact, PlantConfig, SimulatedOmni
+from teleop_force.simulation import (
+    EFFECT_NAMES,
+    PID,
+    PIDGains,
+    PlaneContact,
+    PlantConfig,
+    PlantEffect,
+    SimulatedOmni,
+    make_effect,
+)
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
@@ -88,6 +98,88 @@ HOLD_EVENTS_KEPT = 20
 
 
 @dataclass(frozen=True)
+class EffectSwitch:
+    """A simulated plant effect switched on mid-session (the residual watch's check).
+
+    At ``at_s`` seconds of the slave's loop, :func:`make_effect` ``name`` is switched on in the
+    plant on ``joint`` (0-based; ``None``: the effect's default joint) with the strength that
+    makes its RMS over the last :data:`CALIBRATION_S` seconds ``scale`` times the joint's RMS
+    commanded torque over the session so far (:func:`calibrated_effect`).
+    """
+
+    name: str
+    at_s: float = 60.0
+    scale: float = 0.1
+    joint: int | None = None
+
+    def __post_init__(self) -> None:
+        """Check the name and ranges; raise ConfigurationError."""
+        if self.name not in EFFECT_NAMES:
+            raise ConfigurationError(
+                f"unknown plant effect {self.name!r}; known: {', '.join(EFFECT_NAMES)}"
+            )
+        if not (math.isfinite(self.at_s) and self.at_s >= 0.0):
+            raise ConfigurationError(f"the effect's switch-on time must be >= 0, got {self.at_s}")
+        if not (math.isfinite(self.scale) and self.scale > 0.0):
+            raise ConfigurationError(f"the effect's scale must be > 0, got {self.scale}")
+        if self.joint is not None and not 0 <= self.joint < JOINTS:
+            raise ConfigurationError(f"the effect's joint must be 1..{JOINTS}")
+
+
+#: History the effect's strength is calibrated on [s].
+CALIBRATION_S = 10.0
+
+
+def calibrated_effect(
+    switch: EffectSwitch,
+    t_now_s: float,
+    rms_torque_nm: np.ndarray,
+    q_rad: np.ndarray,
+    qd_rad_s: np.ndarray,
+    tau_nm: np.ndarray,
+) -> PlantEffect:
+    """Return the effect of ``switch`` whose RMS on the history is ``scale`` x the RMS torque.
+
+    Every built-in effect is linear in its strength: the unit-strength effect is evaluated on
+    the history ``(q, qd, tau)`` (N, 3) at time ``t_now_s`` and scaled. ``rms_torque_nm``: the
+    joints' RMS commanded torque.
+    """
+    unit = make_effect(switch.name, switch.joint, 1.0)
+    t = np.full(q_rad.shape[0], float(t_now_s))
+    torque = unit.torque(t, q_rad, qd_rad_s, tau_nm)[:, unit.joint]
+    unit_rms = float(np.sqrt(np.mean(torque * torque))) if torque.size else 0.0
+    if not unit_rms > 0.0:
+        raise ConfigurationError(f"{switch.name}: zero on the history, cannot calibrate it")
+    strength = switch.scale * float(rms_torque_nm[unit.joint]) / unit_rms
+    return make_effect(switch.name, unit.joint, strength)
+
+
+class _EffectHistory:
+    """What the slave keeps to calibrate an effect: running sums and the last seconds."""
+
+    def __init__(self, samples: int) -> None:
+        self.sum_sq = np.zeros(JOINTS)
+        self.count = 0
+        self.q = np.zeros((samples, JOINTS))
+        self.qd = np.zeros((samples, JOINTS))
+        self.tau = np.zeros((samples, JOINTS))
+        self.size = samples
+
+    def add(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> None:
+        i = self.count % self.size
+        self.q[i], self.qd[i], self.tau[i] = q, qd, tau
+        self.sum_sq += tau * tau
+        self.count += 1
+
+    def rms_torque_nm(self) -> np.ndarray:
+        return np.sqrt(self.sum_sq / max(self.count, 1))
+
+    def window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        k = min(self.count, self.size)
+        return self.q[:k], self.qd[:k], self.tau[:k]
+
+
+@dataclass(frozen=True)
 class SlaveConfig:
     """Settings of the slave process.
 
@@ -101,6 +193,7 @@ class SlaveConfig:
         hold_damping_nms_per_rad: Extra joint damping while holding.
         surface_y_m: Height of the tissue surface (``None``: no tissue).
         seed: Seed of the plant's actuator noise.
+        effect_switch: A plant effect switched on mid-session (``None``: none).
 
     """
 
@@ -113,6 +206,7 @@ class SlaveConfig:
     hold_damping_nms_per_rad: tuple[float, float, float] = (0.06, 0.07, 0.03)
     surface_y_m: float | None = DEFAULT_SURFACE_Y_M
     seed: int = 1
+    effect_switch: EffectSwitch | None = None
 
     def __post_init__(self) -> None:
         """Validate the ids and ranges."""
@@ -240,6 +334,8 @@ class SlaveProcess:
         self._status_seq = 0
         self._last_status_s = -math.inf
         self._status_pub: zenoh.Publisher | None = None
+        #: The plant effect switched on mid-session, once it is (``effect``, ``at_s``).
+        self.switched_effect: dict[str, Any] | None = None
 
     # -- statistics ---------------------------------------------------------------------------
 
@@ -260,6 +356,7 @@ class SlaveProcess:
             "hold_events": list(self.hold_events.copy()),  # copy: atomic against the loop
             "hold_events_total": self.hold_events_total,
             "torque_clips": self.plant.clip_count,
+            "plant_effect": self.switched_effect,
         }
 
     # -- main loop ----------------------------------------------------------------------------
@@ -335,6 +432,11 @@ class SlaveProcess:
         q_ref = plant.measured_q_rad().tolist()
         following = m.SafetyState.FOLLOWING
         perf_counter = time.perf_counter
+        switch = config.effect_switch
+        history = (
+            None if switch is None else _EffectHistory(round(CALIBRATION_S * config.loop.rate_hz))
+        )
+        switch_tick = None if switch is None else round(switch.at_s * config.loop.rate_hz)
         loop.start()
         while not stop.is_set():
             k = loop.wait()
@@ -358,6 +460,11 @@ class SlaveProcess:
             if not is_following:
                 tau = tau - damping * pid.velocity_rad_s
             command = plant.command_torque(tau)
+            if history is not None:
+                history.add(q, pid.velocity_rad_s, command.tau_nm)
+                if switch_tick is not None and k >= switch_tick:  # ticks may be skipped
+                    self._switch_effect(history, k * config.loop.period_s)
+                    switch_tick = None
             seq = k & SEQ_MASK
             joint_state = m.pack_joint_state(
                 seq, stamp_ns, q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
@@ -374,6 +481,20 @@ class SlaveProcess:
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)
             plant.step()
+
+    def _switch_effect(self, history: _EffectHistory, t_s: float) -> None:
+        """Switch the configured plant effect on, calibrated on the history (EffectSwitch)."""
+        switch = self.config.effect_switch
+        assert switch is not None
+        q, qd, tau = history.window()
+        try:
+            effect = calibrated_effect(switch, self.plant.t_s, history.rms_torque_nm(), q, qd, tau)
+        except ConfigurationError as exc:
+            log(ROLE, f"plant effect not switched on: {exc}")
+            return
+        self.plant.effects = (*self.plant.effects, effect)
+        self.switched_effect = {"effect": effect.describe(), "at_s": round(t_s, 3)}
+        log(ROLE, f"plant effect switched on at {t_s:.1f} s: {effect.describe()}")
 
     def _record_hold(self, now_s: float, arrival_s: float | None, reason: str) -> None:
         event: dict[str, Any] = {"tick": self.loop.tick, "reason": reason}
@@ -420,6 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-tissue", action="store_true", help="no soft tissue (free space)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the actuator noise")
+    add_plant_effect_arguments(parser)
     return parser
 
 
@@ -438,6 +560,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             max_speed_rad_s=args.max_speed,
             surface_y_m=None if args.no_tissue else args.surface_y,
             seed=args.seed,
+            effect_switch=(
+                None
+                if args.plant_effect is None
+                else EffectSwitch(
+                    args.plant_effect,
+                    args.plant_effect_at_s,
+                    args.plant_effect_scale,
+                    None if args.plant_effect_joint is None else args.plant_effect_joint - 1,
+                )
+            ),
         )
         with MemoryTrimmer() as trimmer:  # a long-running process: RSS follows what is live
             stats = SlaveProcess(config, options_from_args(args), stop).run()

@@ -56,6 +56,7 @@ from web.control import (
 from web.coverage_data import CoverageInfo, coverage_from_model, finite_or, unwrap_model
 from web.coverage_view import Background, compose_frame, render_background
 from web.plots import LivePlots, newest_time, plot_frames
+from web.residual_view import DiagnosticsInbox, diagnostics_markdown
 from web.scene import OmniScene
 from web.stats import StreamSnapshot
 from web.status import UNTRAINED_HOLD_S, TrustInputs, assess, banner_html
@@ -134,6 +135,7 @@ class Dashboard:
         self.models = model_allowlist(config.models_dirs)
         self.recordings = recording_allowlist()
         self.replay = ReplayProcess()
+        self.diagnostics = DiagnosticsInbox()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._subs: Subscriptions | None = None
@@ -170,6 +172,8 @@ class Dashboard:
             )
         with gui.add_folder("Controls"):
             self._build_controls(gui)
+        with gui.add_folder("Residual watch"):
+            self.watch_md = gui.add_markdown(diagnostics_markdown(None))
         with gui.add_folder("Statistics"):
             self.stats_md = gui.add_markdown("waiting for data")
         gui.main_panel.dock_right()
@@ -336,6 +340,7 @@ class Dashboard:
         """Subscribe and start the render and service threads."""
         cfg = self.config
         self._subs = Subscriptions(self._session, self.telemetry, cfg.device, cfg.master_device)
+        self.diagnostics.subscribe(self._session, cfg.device)
         for target, name in ((self._render_loop, "render"), (self._service_loop, "service")):
             thread = threading.Thread(target=target, daemon=True, name=f"dashboard-{name}")
             thread.start()
@@ -348,6 +353,7 @@ class Dashboard:
             thread.join(timeout=5.0)
         if self._subs is not None:
             self._subs.close()
+        self.diagnostics.close()
         self.replay.stop()
         self.server.stop()
 
@@ -450,6 +456,10 @@ class Dashboard:
             self._render_fig4()
         if stats_timer.due(now):
             self.stats_md.content = self._stats_markdown()
+            inbox = self.diagnostics
+            watch = diagnostics_markdown(inbox.latest, inbox.age_s())
+            if watch != self.watch_md.content:
+                self.watch_md.content = watch
 
     def _render_banner(self) -> None:
         tel = self.telemetry

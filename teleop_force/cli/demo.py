@@ -153,6 +153,11 @@ class DemoConfig:
             at ``realtime_nice``.
         service_args: Extra arguments of the service process (``--adapt``,
             ``--zenoh-floor``...).
+        slave_args: Extra arguments of the slave process (``--plant-effect NAME
+            --plant-effect-at-s S --plant-effect-scale X``: a simulated effect switched on
+            mid-session, for the service's residual watch; ``--seed N``: its actuator noise).
+        master_args: Extra arguments of the master process (``--seed N``: the operator's
+            script).
         record: Record the session (every message, by the service, to ``record_dir``).
         router: Run through a Zenoh router (``python -m teleop_force.transport.router`` on
             the rendezvous port): every process, the supervisor included, opens its session
@@ -182,6 +187,8 @@ class DemoConfig:
     rt_priority: int = DEFAULT_RT_PRIORITY
     realtime_nice: int | None = DEFAULT_REALTIME_NICE
     service_args: tuple[str, ...] = ()
+    slave_args: tuple[str, ...] = ()
+    master_args: tuple[str, ...] = ()
     router: bool = False
     record: bool = True
 
@@ -648,13 +655,13 @@ class DemoSupervisor:
         surface = str(config.surface_y_m)
         master = [
             "--device", config.master, "--slave", config.slave, "--motion", config.motion,
-            "--surface-y", surface, "--wait-subscribers", wait,
+            "--surface-y", surface, "--wait-subscribers", wait, *config.master_args,
         ]  # fmt: skip
         if config.haptic_feedback:
             master.append("--haptic-feedback")
         slave = [
             "--device", config.slave, "--master", config.master,
-            "--surface-y", surface, "--wait-subscribers", wait,
+            "--surface-y", surface, "--wait-subscribers", wait, *config.slave_args,
         ]  # fmt: skip
         steps = [
             (

@@ -17,6 +17,7 @@ from typing import Any, TypeAlias
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.estimation.flags import add_estimator_arguments
 from teleop_force.transport.session import add_zenoh_arguments
 
 EXIT_OK = 0
@@ -48,18 +49,24 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from teleop_force.friction.kinds import FrictionKind
     from teleop_force.identification.pipeline import WaveletOptions, identify_model
     from teleop_force.robots.kinds import RobotKind
-    from teleop_force.robots.registry import resolve_robot
+    from teleop_force.robots.registry import resolve_robot, robot_defaults
 
-    recordings = _load_recordings(args.data, robot=args.robot)
+    recordings = _load_recordings(args.data, robot=_reader_robot(args.robot))
     n = recordings[0].q_rad.shape[1]
     description = resolve_robot(args.robot, n)
-    friction = FrictionKind(args.friction)
+    defaults = robot_defaults(args.robot)  # the robot's best baseline (docs/cli.md)
+    friction = FrictionKind(args.friction or defaults.friction)
     if description.name == RobotKind.TESTSTAND:
         from teleop_force.estimation.teststand import identify_teststand_command
 
         return identify_teststand_command(recordings, description, friction, args.output, _log)
+    offsets = defaults.offsets if args.offsets is None else args.offsets
     model, report = identify_model(
-        recordings, description, friction, wavelet=WaveletOptions(method=args.wn_fit)
+        recordings,
+        description,
+        friction,
+        wavelet=WaveletOptions(method=args.wn_fit),
+        offsets=offsets,
     )
     model.save(args.output)
     _log(report.rigid.table())
@@ -75,9 +82,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from teleop_force.estimation.batch import evaluate_recordings
+    from teleop_force.estimation.estimator import estimator_from_args
     from teleop_force.identification.dynamic_model import DynamicModel
 
-    model = DynamicModel.load(args.model)
+    model = estimator_from_args(DynamicModel.load(args.model), args)
     recordings = _load_recordings(args.data, model.n_joints, robot=model.robot)
     # evaluate_model's figures, from the streaming estimator's numbers computed in batch
     result = evaluate_recordings(model, recordings)
@@ -87,6 +95,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         "coverage": [float(x) for x in result["coverage"]],
         "friction": model.friction.kind,
         "robot": model.robot,
+        "estimator": model.filter_config.estimator,
     }
     if args.json:
         print(json.dumps(payload))
@@ -115,9 +124,10 @@ def _cmd_export_json(args: argparse.Namespace) -> int:
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
     from teleop_force.estimation.batch import BatchEstimator
+    from teleop_force.estimation.estimator import estimator_from_args
     from teleop_force.identification.dynamic_model import DynamicModel
 
-    model = DynamicModel.load(args.model)
+    model = estimator_from_args(DynamicModel.load(args.model), args)
     (recording,) = _load_recordings([args.data], model.n_joints, robot=model.robot)
     # the streaming estimator's numbers, computed over the whole recording at once
     estimates = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
@@ -148,21 +158,42 @@ def _write_force_table(path: Path, t_s: np.ndarray, force_n: np.ndarray) -> None
         raise DataError(f"cannot write file: {exc.strerror or exc}", path=path) from None
 
 
+def _reader_robot(robot: str | None) -> str | None:
+    """Return the robot the reader checks the data against (``none`` takes any robot's)."""
+    return None if robot == "none" else robot
+
+
 def _cmd_residual(args: argparse.Namespace) -> int:
-    from teleop_force.friction.kinds import FrictionKind
-    from teleop_force.residual.loop import trace_residual
     from teleop_force.residual.options import EffectPlacement, ResidualOptions
     from teleop_force.residual.report import write_residual_report
-    from teleop_force.robots.registry import resolve_robot
 
-    recordings = _load_recordings(args.data, robot=args.robot)
-    description = resolve_robot(args.robot, recordings[0].q_rad.shape[1])
     options = ResidualOptions(
-        friction=FrictionKind(args.friction),
-        offsets=True if args.offsets else None,
+        friction=args.friction,
+        offsets=args.offsets,
         effect_placement=EffectPlacement(args.effect_placement),
     )
-    report = trace_residual(recordings, description, options)
+    if args.model is not None:
+        from teleop_force.identification.dynamic_model import DynamicModel
+        from teleop_force.residual.from_model import trace_from_model
+
+        if args.friction is not None or args.offsets is not None:
+            raise ConfigurationError("--friction and --offsets do not apply with --model")
+        model = DynamicModel.load(args.model)
+        if args.robot is not None and args.robot != model.robot:
+            raise ConfigurationError(
+                f"--robot {args.robot} differs from the model's robot {model.robot!r}"
+            )
+        recordings = _load_recordings(args.data, model.n_joints, _reader_robot(model.robot))
+        description = model.description()
+        report = trace_from_model(recordings, model, options, str(Path(args.model).resolve()))
+    else:
+        from teleop_force.residual.loop import trace_residual
+        from teleop_force.robots.registry import resolve_robot
+
+        robot = args.robot or "omni"
+        recordings = _load_recordings(args.data, robot=_reader_robot(robot))
+        description = resolve_robot(robot, recordings[0].q_rad.shape[1])
+        report = trace_residual(recordings, description, options)
     if args.output:
         path = write_residual_report(report, Path(args.output), list(description.joint_names))
         _log(f"report written to {path}")
@@ -174,13 +205,12 @@ def _cmd_residual(args: argparse.Namespace) -> int:
                 f"joint {j + 1}: held-out relative RMS "
                 f"{report.before[j]:.2%} -> {report.after[j]:.2%}"
             )
-        for effect in report.effects:
-            e = effect.to_json()
+        for e in report.effects_json():
             print(
                 f"  + {e['description']}: {e['kind']}, "
                 f"explains {e['explained']:.1%} of joint {e['joint']}'s residual"
             )
-        if not report.effects:
+        if not report.effects_json():
             print("no significant effect found")
     return EXIT_OK
 
@@ -220,7 +250,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             flag
             for flag, on in (("--adapt", args.adapt), ("--zenoh-floor", args.zenoh_floor))
             if on
-        ),
+        )
+        + (() if args.estimator is None else ("--estimator", args.estimator))
+        + (() if args.observer_hz is None else ("--observer-hz", repr(args.observer_hz))),
+        slave_args=_plant_effect_args(args),
         **({} if args.rt_priority is None else {"rt_priority": args.rt_priority}),
         **({} if args.nice is None else {"realtime_nice": args.nice}),
     )
@@ -235,6 +268,30 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK if summary["ok"] else 1
 
 
+def _plant_effect_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """Return the slave's ``--plant-effect*`` flags of ``demo`` (none without the effect)."""
+    if args.plant_effect is None:
+        return ()
+    from teleop_force.simulation.effects import EFFECT_NAMES
+
+    if args.plant_effect not in EFFECT_NAMES:
+        raise ConfigurationError(
+            f"--plant-effect {args.plant_effect!r}: not a plant effect; known: "
+            + ", ".join(EFFECT_NAMES)
+        )
+    joint = (
+        ()
+        if args.plant_effect_joint is None
+        else ("--plant-effect-joint", str(args.plant_effect_joint))
+    )
+    return (
+        "--plant-effect", args.plant_effect,
+        "--plant-effect-at-s", repr(args.plant_effect_at_s),
+        "--plant-effect-scale", repr(args.plant_effect_scale),
+        *joint,
+    )  # fmt: skip
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     if args.record is not None and not args.with_service:
         raise ConfigurationError("--record needs --with-service (the service records)")
@@ -246,12 +303,17 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _replay_model(args: argparse.Namespace, metadata: dict[str, str]) -> tuple[Any, Path]:
-    """Load ``--model``, else the recording's model, else the shipped one (``--with-service``)."""
+    """Load ``--model``, else the recording's model, else the shipped one (``--with-service``).
+
+    The estimator the recording names in its metadata is the one run (as recorded).
+    """
+    from teleop_force.estimation.estimator import with_recorded_estimator
     from teleop_force.service.force_service import load_model
 
     recorded = metadata.get("model", "")
     chosen = args.model or (recorded if recorded and Path(recorded).is_file() else None)
-    return load_model(None if chosen is None else Path(chosen))
+    model, path = load_model(None if chosen is None else Path(chosen))
+    return with_recorded_estimator(model, metadata), path
 
 
 def _reestimate(args: argparse.Namespace) -> int:
@@ -360,13 +422,33 @@ def _publish(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_residual_blind(args: argparse.Namespace) -> int:
-    from teleop_force.reports.blind_tests import run_blind_tests, write_blind_report
+def _cmd_teststand_heldout(args: argparse.Namespace) -> int:
+    from teleop_force.reports.teststand_heldout import held_out_study
 
-    cases = run_blind_tests(args.duration, log=_log)
-    path = write_blind_report(cases, Path(args.output))
+    report = held_out_study(args.folder, args.train_fraction, args.torques)
+    if args.json:
+        print(json.dumps(report.to_json()))
+    else:
+        print("\n".join(report.lines()))
+    return EXIT_OK
+
+
+def _cmd_residual_blind(args: argparse.Namespace) -> int:
+    from teleop_force.reports.blind_tests import (
+        run_blind_tests,
+        run_payload_case,
+        write_blind_report,
+    )
+
+    cases, payloads = [], []
+    for family in args.family.split(","):
+        cases += run_blind_tests(args.duration, log=_log, family=family)
+        if args.payload:
+            payloads.append(run_payload_case(family, args.duration, log=_log))
+    path = write_blind_report(cases, Path(args.output), payloads)
     print(path.read_text())
-    return EXIT_OK if all(c.passed for c in cases) else 1
+    passed = all(c.passed for c in cases) and all(p.passed for p in payloads)
+    return EXIT_OK if passed else 1
 
 
 def _cmd_experiments(args: argparse.Namespace) -> int:
@@ -377,6 +459,32 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     _log(f"report written to {Path(args.output) / 'report.md'}")
     if args.json:
         print(json.dumps(results, default=float))
+    return EXIT_OK
+
+
+def _cmd_accuracy(args: argparse.Namespace) -> int:
+    from teleop_force.reports.accuracy import (
+        AccuracyOptions,
+        BatchEstimate,
+        run_accuracy,
+        write_accuracy_report,
+    )
+
+    options = AccuracyOptions(args.identify_duration, args.test_duration)
+    overrides: dict[str, object] = {}
+    if args.estimator is not None:
+        overrides["estimator"] = args.estimator
+    if args.observer_hz is not None:
+        overrides["observer_hz"] = args.observer_hz
+    results = run_accuracy(
+        args.family, args.seeds, estimate=BatchEstimate(overrides), options=options, log=_log
+    )
+    markdown, json_path = write_accuracy_report(results, Path(args.output), options)
+    _log(f"report written to {markdown} and {json_path}")
+    if args.json:
+        print(json.dumps({"sessions": [r.to_json() for r in results]}))
+    else:
+        print(markdown.read_text())
     return EXIT_OK
 
 
@@ -403,6 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(subparsers)
     _add_experiments(subparsers)
     _add_residual_blind(subparsers)
+    _add_accuracy(subparsers)
+    _add_teststand_heldout(subparsers)
     return parser
 
 
@@ -438,9 +548,17 @@ def _add_identify(subparsers: _Subparsers) -> None:
     p.add_argument(
         "--friction",
         choices=[kind.value for kind in FrictionKind],
-        default=FrictionKind.WN.value,
-        help="model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
+        default=None,
+        help="default: the robot's best baseline (wn; model-cv on dvrk-mtm, cv on teststand)."
+        " model-cv: Coulomb + viscous on the model joints' velocities (T qd),"
         " reaching the motors through the coupling (closed chains, cables)",
+    )
+    p.add_argument(
+        "--offsets",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit a constant torque per joint (default: the robot's: on for dvrk-mtm and"
+        " none, else off)",
     )
     p.add_argument(
         "--wn-fit",
@@ -457,6 +575,7 @@ def _add_evaluate(subparsers: _Subparsers) -> None:
     p = subparsers.add_parser("evaluate", help="reverse torque computation, relative RMS per joint")
     p.add_argument("model")
     p.add_argument("data", nargs="+")
+    add_estimator_arguments(p)
     _add_json_flag(p)
     p.set_defaults(run=_cmd_evaluate)
 
@@ -465,6 +584,7 @@ def _add_estimate(subparsers: _Subparsers) -> None:
     p = subparsers.add_parser("estimate", help="contact-force estimate for every sample")
     p.add_argument("model")
     p.add_argument("data")
+    add_estimator_arguments(p)
     _add_output(p, required=True)
     p.set_defaults(run=_cmd_estimate)
 
@@ -481,24 +601,33 @@ def _add_export_json(subparsers: _Subparsers) -> None:
 
 def _add_residual(subparsers: _Subparsers) -> None:
     # The light options module only (the enums): the loop itself is imported when it runs.
-    from teleop_force.friction.kinds import FrictionKind
     from teleop_force.residual.options import COMMAND_LINE_FRICTION_KINDS, EffectPlacement
 
     p = subparsers.add_parser(
         "residual", help="find, trace and add what the model lacks; report before/after"
     )
     p.add_argument("data", nargs="+")
-    p.add_argument("--robot", default="omni")
+    p.add_argument(
+        "--model",
+        default=None,
+        metavar="MODEL",
+        help="keep this model's identified parameters and trace what DATA shows it lacks"
+        " (default: fit the model from DATA)",
+    )
+    p.add_argument("--robot", default=None, help="default: omni, or the model's robot")
     p.add_argument(
         "--friction",
         choices=[kind.value for kind in COMMAND_LINE_FRICTION_KINDS],
-        default=FrictionKind.COUPLED_CV.value,
-        help="friction of the model the residual is taken from (model-cv: in model coordinates)",
+        default=None,
+        help="friction of the model the residual is taken from (default: the robot's best"
+        " baseline: wn; model-cv on dvrk-mtm; model-cv: in model coordinates)",
     )
     p.add_argument(
         "--offsets",
-        action="store_true",
-        help="fit a constant torque per joint with the friction (default: only without a body)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit a constant torque per joint with the friction (default: the robot's: on"
+        " for dvrk-mtm and without a body, else off)",
     )
     p.add_argument(
         "--effect-placement",
@@ -565,6 +694,7 @@ def _add_demo(subparsers: _Subparsers) -> None:
     )
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.add_argument("--adapt", action="store_true", help="start the service with WN adaptation on")
+    add_estimator_arguments(p)
     p.add_argument(
         "--router", action="store_true",
         help="run through a Zenoh router: every process a client of it (as on two hosts)",
@@ -582,6 +712,9 @@ def _add_demo(subparsers: _Subparsers) -> None:
         "--nice", type=int, default=None, metavar="N",
         help="nice value of the children and the supervisor (default -10, where permitted)",
     )  # fmt: skip
+    from master_slave.process_args import add_plant_effect_arguments
+
+    add_plant_effect_arguments(p)
     p.set_defaults(run=_cmd_demo)
 
 
@@ -657,13 +790,62 @@ def _add_experiments(subparsers: _Subparsers) -> None:
     p.set_defaults(run=_cmd_experiments)
 
 
+def _add_accuracy(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "accuracy", help="held-out force accuracy per simulated plant family and seed"
+    )
+    p.add_argument(
+        "--family", nargs="+", choices=("one", "two"), default=["one"], help="plant families"
+    )
+    p.add_argument("--seeds", nargs="+", type=int, default=[1], help="one session per seed")
+    p.add_argument(
+        "--identify-duration", type=float, default=120.0, help="free motion to identify on [s]"
+    )
+    p.add_argument(
+        "--test-duration", type=float, default=60.0, help="teleoperation touching a floor [s]"
+    )
+    add_estimator_arguments(p)
+    _add_output(p, "folder for accuracy.md and accuracy.json", required=True)
+    _add_json_flag(p, "print the figures as one JSON object")
+    p.set_defaults(run=_cmd_accuracy)
+
+
 def _add_residual_blind(subparsers: _Subparsers) -> None:
     p = subparsers.add_parser(
         "residual-blind", help="blind tests of the residual loop on simulated effects"
     )
     _add_output(p, "folder for blind.md and blind.json", required=True)
     p.add_argument("--duration", type=float, default=60.0, help="session length [s]")
+    p.add_argument(
+        "--family",
+        default="one,two",
+        help="simulated plant families, comma-separated (default one,two)",
+    )
+    p.add_argument(
+        "--payload",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also trace a session with a tip mass against a model of a clean one (--model)",
+    )
     p.set_defaults(run=_cmd_residual_blind)
+
+
+def _add_teststand_heldout(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "teststand-heldout",
+        help="test stand held out in time: identify on the first part, score on the rest",
+    )
+    p.add_argument("folder", help="folder of test-stand .dat logs with the ATI force")
+    p.add_argument(
+        "--train-fraction", type=float, default=2.0 / 3.0, metavar="F",
+        help="fraction of the samples, from the start, to identify on (default 2/3)",
+    )  # fmt: skip
+    p.add_argument(
+        "--torques", choices=("target", "measured"), default=None,
+        help="torque source (default: target when its file is there, else measured)",
+    )  # fmt: skip
+    _add_json_flag(p)
+    p.set_defaults(run=_cmd_teststand_heldout)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

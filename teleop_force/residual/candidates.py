@@ -121,3 +121,22 @@ def dominant_frequency(x: np.ndarray, residual: np.ndarray, span: float) -> floa
     phase = np.outer(x, grid)
     power = (r @ np.cos(phase)) ** 2 + (r @ np.sin(phase)) ** 2
     return float(grid[int(np.argmax(power))])
+
+
+def friction_change_candidates(joint: int) -> list[BasisSpec]:
+    """List changes of the joint's own friction against a model in hand: viscous, Coulomb.
+
+    Offered only when the model's friction is kept fixed
+    (:mod:`teleop_force.residual.from_model`): warmer motors or a worn cable change the
+    friction the model knows, and that change is itself the effect to name.
+    """
+    return [
+        BasisSpec(joint, f"qd{joint + 1}", "linear", "none"),
+        BasisSpec(joint, "t", "constant", "sign"),
+    ]
+
+
+def is_friction_shaped(spec: BasisSpec) -> bool:
+    """Return whether ``spec`` is a function of its own joint's velocity alone (friction)."""
+    own = spec.variable == f"qd{spec.joint + 1}"
+    return own or (spec.shape == "constant" and spec.modulation == "sign")

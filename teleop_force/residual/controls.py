@@ -106,6 +106,22 @@ def friction_stand_in_columns(
     return np.concatenate(out)
 
 
+def inertia_stand_in_columns(samples: SelectedSamples) -> np.ndarray:
+    """Every joint's filtered acceleration at the selected rows, ``(rows, n)``.
+
+    A robot without a rigid body (``none``) has no inertia in its model, and on a periodic
+    trajectory the accelerations are functions of the angles (``q̈ = -w^2 q`` for one
+    sinusoid): a pose effect would stand in for the inertia on that trajectory and fail on
+    the next. A candidate must also lower the error with these in the model.
+    """
+    out = []
+    for item, idx in zip(samples.prepared, samples.rows, strict=True):
+        s = item.signals
+        velocity = lowpass_batch(s.qd_rad_s, s.t_s, s.config.cutoff_hz)
+        out.append(np.gradient(velocity, s.t_s, axis=0)[idx])
+    return np.concatenate(out)
+
+
 def control_design(
     samples: SelectedSamples,
     design: JointDesign,
@@ -116,16 +132,19 @@ def control_design(
 ) -> JointDesign | None:
     """Return ``joint``'s design with its friction controls added.
 
-    None when the friction maps nothing beyond the joint's own velocity.
+    Without a rigid body also the inertia stand-ins (:func:`inertia_stand_in_columns`) and
+    the friction stand-ins of the joint's own velocity. None when the friction maps nothing
+    beyond the joint's own velocity and the robot has a body.
     """
-    specs = velocity_controls(samples, joint, covered)
+    bodiless = not description.has_rigid_body
+    specs = velocity_controls(samples, joint, (joint,) if bodiless and not covered else covered)
     if not specs:
         return None
-    extra = np.concatenate(
-        [filtered_columns(samples, spec) for spec in specs]
-        + [friction_stand_in_columns(samples, joint, description)],
-        axis=1,
-    )
+    parts = [filtered_columns(samples, spec) for spec in specs]
+    parts.append(friction_stand_in_columns(samples, joint, description))
+    if bodiless:
+        parts.append(inertia_stand_in_columns(samples))
+    extra = np.concatenate(parts, axis=1)
     return JointDesign(
         np.concatenate((design.base, extra), axis=1),
         design.y,

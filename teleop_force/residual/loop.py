@@ -37,15 +37,21 @@ from typing import Any
 
 import numpy as np
 
+from teleop_force.friction.kinds import FrictionKind
 from teleop_force.identification.effects import BasisSpec, variable_values
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.io.interchange_csv import Recording
-from teleop_force.residual.candidates import candidate_effects
+from teleop_force.residual.candidates import (
+    candidate_effects,
+    friction_change_candidates,
+    is_friction_shaped,
+)
 from teleop_force.residual.controls import control_design, control_gain
 from teleop_force.residual.model_fits import Baseline, final_model, fit_baseline, with_network
 from teleop_force.residual.options import EffectPlacement, ResidualOptions
+from teleop_force.residual.payload import PayloadCandidate, confirm_payload
 from teleop_force.residual.placement import effect_reaches, placed_columns
-from teleop_force.residual.report import EffectPlot, ResidualReport, TracedEffect
+from teleop_force.residual.report import EffectPlot, ResidualReport, TracedEffect, TracedPayload
 from teleop_force.residual.samples import (
     SelectedSamples,
     filtered_columns,
@@ -83,6 +89,11 @@ class Scorers:
     reaches: tuple[np.ndarray | None, ...]
     #: Where effects act, ``auto`` resolved.
     placement: EffectPlacement
+    #: The last link's inertial parameters as a candidate (a model in hand only).
+    payload: PayloadCandidate | None = None
+    #: Offer changes of each joint's own friction, exempt from the friction controls (a
+    #: model in hand: its friction is fixed, so a change of it is an effect to name).
+    friction_changes: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,6 +194,8 @@ class Search:
     history: tuple[dict[str, Any], ...]
     rejected: tuple[dict[str, Any], ...]
     plots: tuple[EffectPlot, ...]
+    #: The payload, when one was offered and confirmed.
+    payload: TracedPayload | None = None
 
 
 def trace_residual(
@@ -192,10 +205,11 @@ def trace_residual(
     config: FilterConfig | None = None,
 ) -> ResidualReport:
     """Fit, find what the model lacks on held-out data, add it, refit, report before and after."""
-    options = options or ResidualOptions()
+    options = (options or ResidualOptions()).for_robot(description.name, description.has_rigid_body)
     config = config or FilterConfig()
-    offsets = not description.has_rigid_body if options.offsets is None else options.offsets
-    baseline = fit_baseline(recordings, description, options.friction, offsets, config)
+    offsets = bool(options.offsets)
+    friction = options.friction or FrictionKind.WN
+    baseline = fit_baseline(recordings, description, friction, offsets, config)
     samples = select_samples(baseline.prepared, options, baseline.rigid_values)
     scorers = _scorers(samples, baseline, description, options)
     search = _search(samples, scorers, options, offsets)
@@ -239,10 +253,9 @@ def _scorers(
     reaches = effect_reaches(description) if placement is not EffectPlacement.MOTOR else [None] * n
     check = whole_model_check(samples, friction_l, baseline.offsets, options, samples.folds)
     veto = None
-    if samples.phase_folds is not None:
-        veto = whole_model_check(
-            samples, friction_l, baseline.offsets, options, samples.phase_folds
-        )
+    holdout = samples.holdout_folds
+    if holdout is not None:
+        veto = whole_model_check(samples, friction_l, baseline.offsets, options, *holdout)
     return Scorers(tuple(designs), controls, check, veto, covered, tuple(reaches), placement)
 
 
@@ -257,7 +270,11 @@ def _search(
     history: list[dict[str, Any]] = []
     rejected: list[dict[str, Any]] = []
     refuted: set[tuple[int, BasisSpec]] = set()
-    for _ in range(options.max_effects):
+    payload = None
+    if scorers.payload is not None:
+        payload, entry = _try_payload(scorers, scorers.payload, current, options)
+        (history if payload is not None else rejected).append(entry)
+    for _ in range(options.max_effects - (payload is not None)):
         screening = _screen(samples, scorers, options, offsets, refuted)
         rejected += [r.to_dict() for r in screening.rejected]
         choice = _choose(scorers, screening.passing, options)
@@ -277,7 +294,55 @@ def _search(
         tuple(history),
         tuple(rejected),
         tuple(a.plot for a in accepted),
+        payload,
     )
+
+
+def _try_payload(
+    scorers: Scorers, payload: PayloadCandidate, current: np.ndarray, options: ResidualOptions
+) -> tuple[TracedPayload | None, dict[str, Any]]:
+    """Confirm the payload in the whole model; if it is, add it to every design it reaches.
+
+    Updates ``current`` (held-out relative RMS per joint) in place. Returns the payload (None:
+    refuted) and its history or rejection entry.
+    """
+    checked = confirm_payload(scorers.check, scorers.veto, payload, options)
+    entry: dict[str, Any] = {
+        "effect": f"link {payload.link}: inertial parameters",
+        "kind": "payload",
+        "gain": checked.gain,
+        "control_gain": checked.gain,
+        "holdout_gain": checked.holdout_gain,
+        "whole_model_worse_joints": list(checked.worse_joints),
+    }
+    if not checked.confirmed:
+        return None, entry
+    scorers.check.add(payload.columns)
+    if scorers.veto is not None:
+        scorers.veto.add(payload.columns)
+    j = checked.joint
+    design = scorers.designs[j]
+    base_errors = design.held_out_errors()
+    for k in payload.reached:
+        scorers.designs[k].add(payload.columns[:, k, :])
+        control = scorers.controls[k]
+        if control is not None:
+            control.add(payload.columns[:, k, :])
+    for k in range(len(current)):
+        d = scorers.designs[k]
+        current[k] = d.relative_rms(d.held_out_errors())
+    after_errors = design.held_out_errors()
+    explained = 1.0 - after_errors.sum() / max(base_errors.sum(), 1e-300)
+    traced = TracedPayload(
+        payload.link,
+        j,
+        payload.reached,
+        payload.depends_on,
+        float(explained),
+        design.relative_rms(base_errors),
+        float(current[j]),
+    )
+    return traced, entry
 
 
 def _screen(
@@ -294,9 +359,10 @@ def _screen(
     for j, design in enumerate(scorers.designs):
         base_errors = design.held_out_errors()
         residual = design.residual()
-        for spec in candidate_effects(
-            samples, j, n, residual, options, offsets, scorers.covered[j]
-        ):
+        specs = candidate_effects(samples, j, n, residual, options, offsets, scorers.covered[j])
+        if scorers.friction_changes:
+            specs += friction_change_candidates(j)
+        for spec in specs:
             if (j, spec) in refuted:
                 continue
             cols = filtered_columns(samples, spec)
@@ -307,13 +373,32 @@ def _screen(
             wins = float(np.mean(errors < base_errors))
             if not (gain >= options.min_rms_gain and wins >= options.min_fold_wins):
                 continue
-            over_controls = control_gain(scorers.controls[j], cols)
+            # the joint's own friction shape is named as such: its stand-ins are its controls
+            exempt = is_friction_shaped(spec)
+            over_controls = 1.0 if exempt else control_gain(scorers.controls[j], cols)
             if over_controls < options.min_control_gain:
                 rejected.append(ControlRejection(spec.describe(), gain, over_controls))
                 continue
             passing.append(Candidate(j, spec, cols, errors, gain, over_controls))
-    passing.sort(key=lambda candidate: -candidate.gain)
-    return Screening(tuple(passing), tuple(rejected))
+    return Screening(_simplest_first(passing, options.parsimony), tuple(rejected))
+
+
+def _simplest_first(passing: list[Candidate], parsimony: float) -> tuple[Candidate, ...]:
+    """Order candidates: those within ``parsimony`` of the best gain first, simplest first.
+
+    Then the rest, best gain first.
+
+    A load-dependent friction ``|tau2| sgn(qd2)`` is, on a gravity-loaded joint, also a
+    function of the angles times the direction; sixteen bumps fit it a little better
+    held out than its one parameter. The simpler name that explains nearly as much is the
+    one the physics has.
+    """
+    passing = sorted(passing, key=lambda candidate: -candidate.gain)
+    if not passing:
+        return ()
+    bar = parsimony * passing[0].gain
+    near = sorted((c for c in passing if c.gain >= bar), key=lambda c: (c.spec.size, -c.gain))
+    return tuple(near + [c for c in passing if c.gain < bar])
 
 
 def _choose(scorers: Scorers, passing: Sequence[Candidate], options: ResidualOptions) -> Choice:

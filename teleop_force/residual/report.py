@@ -30,10 +30,13 @@ class TracedEffect:
 
     def to_json(self) -> dict[str, Any]:
         """Return the form of docs/cli.md (``reach`` only for an effect at a model joint)."""
+        kind = self.spec.kind
+        if self.spec.variable == f"qd{self.spec.joint + 1}" and self.spec.shape != "stribeck":
+            kind = "velocity-dependent friction"  # the joint's own velocity: not a coupling
         out: dict[str, Any] = {
             "joint": self.spec.joint + 1,
             "depends_on": self.spec.depends_on(),
-            "kind": self.spec.kind,
+            "kind": kind,
             "explained": round(float(self.explained), 6),
             "description": self.spec.describe(),
             "joint_rms_before": float(self.joint_rms_before),
@@ -42,6 +45,38 @@ class TracedEffect:
         if self.reach is not None:
             out["reach"] = [float(w) for w in self.reach]
         return out
+
+
+@dataclass(frozen=True)
+class TracedPayload:
+    """A payload the loop added: a change of the last link's inertial parameters."""
+
+    #: The last link (1-based) and the joint (0-based) it helps most.
+    link: int
+    joint: int
+    #: Joints (0-based) its torque reaches, the angles it depends on.
+    reached: tuple[int, ...]
+    depends_on: tuple[str, ...]
+    explained: float
+    joint_rms_before: float
+    joint_rms_after: float
+    #: The identified change of the base parameters (filled by the final fit).
+    base_change: tuple[float, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the form of docs/cli.md: an effect that reaches several joints."""
+        return {
+            "joint": self.joint + 1,
+            "joints": [j + 1 for j in self.reached],
+            "depends_on": list(self.depends_on),
+            "kind": "payload",
+            "explained": round(float(self.explained), 6),
+            "description": f"link {self.link}: inertial parameters (mass, first moments,"
+            " inertia) changed",
+            "joint_rms_before": float(self.joint_rms_before),
+            "joint_rms_after": float(self.joint_rms_after),
+            "base_parameter_change": [float(x) for x in self.base_change],
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,16 +108,32 @@ class ResidualReport:
     effect_plots: tuple[EffectPlot, ...] = ()
     #: Candidates that passed the search but not a control or the whole-model check.
     rejected: tuple[dict[str, Any], ...] = ()
+    #: A payload found (a model in hand only, :mod:`teleop_force.residual.from_model`).
+    payload: TracedPayload | None = None
+    #: The model file the residual was taken against (None: the model was fitted here).
+    baseline_model: str | None = None
+
+    def effects_json(self) -> list[dict[str, Any]]:
+        """Return the JSON ``effects``: the payload first, then the other effects in order."""
+        payload = [] if self.payload is None else [self.payload.to_json()]
+        return payload + [e.to_json() for e in self.effects]
 
     def to_json(self) -> dict[str, Any]:
         """Return the JSON object of ``teleop-force residual --json``."""
-        return {
+        out: dict[str, Any] = {
             "before": [float(x) for x in self.before],
             "after": [float(x) for x in self.after],
-            "effects": [e.to_json() for e in self.effects],
+            "effects": self.effects_json(),
             "samples": self.samples,
             "held_out": "blocked cross-validation over contiguous time blocks",
         }
+        if self.baseline_model is not None:
+            out["baseline_model"] = self.baseline_model
+            out["held_out"] = (
+                "before: the model as given (not fitted on DATA); after: the found effects"
+                " by blocked cross-validation over contiguous time blocks"
+            )
+        return out
 
 
 def write_residual_report(
@@ -137,8 +188,11 @@ def _markdown_tables(report: ResidualReport, names: list[str]) -> list[str]:
     ]
     for j in range(report.before.size):
         lines.append(f"| {names[j]} | {report.before[j]:.2%} | {report.after[j]:.2%} |")
+    if report.baseline_model is not None:
+        lines[1:1] = ["", f"Residual against the model `{report.baseline_model}`."]
     lines += ["", "## Effects found", ""]
-    if not report.effects:
+    found = report.effects_json()
+    if not found:
         lines.append("None: nothing lowered the held-out error significantly.")
     else:
         lines += [
@@ -146,9 +200,11 @@ def _markdown_tables(report: ResidualReport, names: list[str]) -> list[str]:
             " | joint RMS before | after |",
             "|---|---|---|---|---|---|---|---|",
         ]
-    for k, effect in enumerate(report.effects):
-        e = effect.to_json()
-        acts = describe_reach(e["joint"], e.get("reach"))
+    for k, e in enumerate(found):
+        if "joints" in e:
+            acts = ", ".join(f"joint {j}" for j in e["joints"])
+        else:
+            acts = describe_reach(e["joint"], e.get("reach"))
         lines.append(
             f"| {k + 1} | {e['joint']} | {acts} | {', '.join(e['depends_on'])} | {e['kind']}"
             f" | {e['explained']:.1%} | {e['joint_rms_before']:.2%} | {e['joint_rms_after']:.2%} |"

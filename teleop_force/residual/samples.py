@@ -49,6 +49,19 @@ class SelectedSamples:
     phase_folds: np.ndarray | None = None
 
     @property
+    def holdout_folds(self) -> tuple[np.ndarray, int] | None:
+        """Folds of the data an effect was not found on, and their count (None: no such data).
+
+        With several recordings, one fold per recording (an effect found on the others must
+        hold on it); else the blocks by phase of a periodic recording; else None.
+        """
+        if len(self.rows) > 1:
+            return np.repeat(np.arange(len(self.rows)), [r.size for r in self.rows]), len(self.rows)
+        if self.phase_folds is not None:
+            return self.phase_folds, int(self.phase_folds.max()) + 1
+        return None
+
+    @property
     def stacked_rows(self) -> np.ndarray:
         """Indices of the selected samples in the stacked signals."""
         offsets = np.cumsum([0] + [p.signals.n_samples for p in self.prepared[:-1]])
@@ -152,11 +165,13 @@ def whole_model_check(
     offsets: bool,
     options: ResidualOptions,
     folds: np.ndarray,
+    n_folds: int | None = None,
 ) -> WholeModelCheck:
     """Return the whole model's design at the selected rows: rigid body, friction, offsets.
 
     The friction is the stage-one model's (a wavelet network's coupled CV fallback): a
-    velocity map does not extrapolate to blocks held out by phase.
+    velocity map does not extrapolate to blocks held out by phase. ``n_folds``: the number
+    of ``folds`` (default ``options.folds``).
     """
     n = friction_l.shape[1]
     pairs = list(zip(samples.prepared, samples.rows, strict=True))
@@ -165,4 +180,5 @@ def whole_model_check(
     parts = [rigid, friction_l[:, :, np.any(friction_l != 0.0, axis=(0, 1))]]
     if offsets:
         parts.append(np.broadcast_to(np.eye(n), (rigid.shape[0], n, n)))
-    return WholeModelCheck(np.concatenate(parts, axis=2), y, folds, options.folds, options.ridge)
+    count = options.folds if n_folds is None else n_folds
+    return WholeModelCheck(np.concatenate(parts, axis=2), y, folds, count, options.ridge)

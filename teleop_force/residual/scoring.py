@@ -32,7 +32,13 @@ class JointDesign:
     """Held-out scoring of candidate columns for one joint from per-fold normal equations."""
 
     def __init__(
-        self, base: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float
+        self,
+        base: np.ndarray,
+        y: np.ndarray,
+        folds: np.ndarray,
+        n_folds: int,
+        ridge: float,
+        reference_energy: float | None = None,
     ) -> None:
         self.y = y
         self.folds = folds
@@ -40,6 +46,11 @@ class JointDesign:
         self.ridge = ridge
         self._masks = [folds == f for f in range(n_folds)]
         self.yy = np.array([float(y[m] @ y[m]) for m in self._masks])
+        #: What :meth:`relative_rms` divides by: the sum of squares of ``y``, or of the torque
+        #: when ``y`` is a residual against a fixed model (``reference_energy``).
+        self.reference_energy = (
+            float(self.yy.sum()) if reference_energy is None else reference_energy
+        )
         self._set_base(base)
 
     def _set_base(self, base: np.ndarray) -> None:
@@ -59,6 +70,9 @@ class JointDesign:
         for f in range(self.n_folds):
             g = g_all - grams[f]
             c = c_all - crosses[f]
+            if g.shape[0] == 0:  # nothing to fit: the held-out error is the signal's own
+                errors[f] = self.yy[f]
+                continue
             scale = np.sqrt(np.clip(np.diag(g), 1e-300, None))
             gs = g / np.outer(scale, scale) + self.ridge * np.eye(len(scale))
             try:
@@ -85,10 +99,12 @@ class JointDesign:
 
     def relative_rms(self, errors: np.ndarray) -> float:
         """Held-out relative RMS from per-fold squared errors."""
-        return float(np.sqrt(errors.sum() / max(self.yy.sum(), 1e-300)))
+        return float(np.sqrt(errors.sum() / max(self.reference_energy, 1e-300)))
 
     def residual(self) -> np.ndarray:
         """Residual of the least-squares fit of the base on all rows."""
+        if self.base.shape[1] == 0:
+            return self.y
         theta = np.linalg.lstsq(self.base, self.y, rcond=None)[0]
         return self.y - self.base @ theta
 
@@ -103,14 +119,23 @@ class WholeModelCheck:
     """
 
     def __init__(
-        self, columns: np.ndarray, y: np.ndarray, folds: np.ndarray, n_folds: int, ridge: float
+        self,
+        columns: np.ndarray,
+        y: np.ndarray,
+        folds: np.ndarray,
+        n_folds: int,
+        ridge: float,
+        reference_energy: np.ndarray | None = None,
     ) -> None:
         self.columns = columns  # (rows, n, p)
         self.y = y  # (rows, n)
         self.folds = folds
         self.n_folds = n_folds
         self.ridge = ridge
-        self._yy = np.clip(np.sum(y**2, axis=0), 1e-300, None)
+        # What the relative RMS divides by: y's energy per joint, or the torque's when y is a
+        # residual against a fixed model.
+        energy = np.sum(y**2, axis=0) if reference_energy is None else reference_energy
+        self._yy = np.clip(energy, 1e-300, None)
         self._base: np.ndarray | None = None
 
     def add(self, extra: np.ndarray) -> None:
@@ -127,6 +152,9 @@ class WholeModelCheck:
         squared = np.zeros(n)
         for f in range(self.n_folds):
             held = self.folds == f
+            if p == 0:  # nothing to fit: the held-out error is the signal's own
+                squared += np.sum(self.y[held] ** 2, axis=0)
+                continue
             train = a[~held].reshape(-1, p)
             gram = train.T @ train
             scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
@@ -167,6 +195,9 @@ class Confirmation:
     worse_joints: tuple[int, ...]
     #: Whole-model held-out relative RMS per joint with the candidate.
     after: tuple[float, ...]
+    #: Relative drop of the joint's RMS on the data it was not found on (another recording,
+    #: or blocks held out by phase; None: no such data).
+    holdout_gain: float | None = None
 
 
 def confirm(
@@ -183,11 +214,12 @@ def confirm(
 
     A placement is confirmed when it lowers ``joint``'s held-out RMS by ``min_rms_gain`` and
     raises no explained joint's (:func:`worse_joints`) by more than that, and (``veto``: the
-    same model on blocks held out by phase) raises no explained joint's phase-held-out RMS by
-    more than that either: an effect that only fits the poses of a repeated trajectory fails
-    there. The model joint (``reach``) is kept when it is confirmed; ``joint`` alone is tried
-    after it when ``alone_too`` (or without a ``reach``). Returns the confirmed placement or
-    the last one tried.
+    same model on data the effect was not found on: another recording, or blocks held out
+    by phase) lowers ``joint``'s RMS there by ``min_holdout_gain`` and raises no explained
+    joint's by more than ``min_rms_gain`` either: an effect that only fits the poses of a
+    repeated trajectory fails there. The model joint (``reach``) is kept when it is
+    confirmed; ``joint`` alone is tried after it when ``alone_too`` (or without a ``reach``).
+    Returns the confirmed placement or the last one tried.
     """
     placements: tuple[np.ndarray | None, ...] = (None,)
     if reach is not None:
@@ -197,16 +229,19 @@ def confirm(
         after = check.relative_rms(placed)
         gain = 1.0 - after[joint] / max(before[joint], 1e-300)
         worse = worse_joints(before, after, options.min_rms_gain)
+        holdout_gain = None
         if veto is not None:
-            worse |= worse_joints(
-                veto.relative_rms(), veto.relative_rms(placed), options.min_rms_gain
-            )
+            veto_before, veto_after = veto.relative_rms(), veto.relative_rms(placed)
+            worse |= worse_joints(veto_before, veto_after, options.min_rms_gain)
+            holdout_gain = float(1.0 - veto_after[joint] / max(veto_before[joint], 1e-300))
+        holds = holdout_gain is None or holdout_gain >= options.min_holdout_gain
         result = Confirmation(
-            confirmed=bool(gain >= options.min_rms_gain and not worse.any()),
+            confirmed=bool(gain >= options.min_rms_gain and holds and not worse.any()),
             reach=placement,
             gain=float(gain),
             worse_joints=tuple(int(k) + 1 for k in np.flatnonzero(worse)),
             after=tuple(after.tolist()),
+            holdout_gain=holdout_gain,
         )
         if result.confirmed:
             break

@@ -1,6 +1,8 @@
-"""Robot descriptions by name: built-in robots and description files."""
+"""Robot descriptions by name: built-in robots and description files; each one's defaults."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -8,6 +10,38 @@ from teleop_force.errors import ModelError
 from teleop_force.robots.description import RobotDescription
 from teleop_force.robots.kinds import BUILTIN_ROBOTS, RobotKind
 from teleop_force.robots.omni import omni_description
+
+
+@dataclass(frozen=True)
+class RobotDefaults:
+    """The best baseline of a robot: what ``identify`` and ``residual`` fit by default.
+
+    ``friction`` is a friction kind's name (``teleop_force.friction.kinds.FrictionKind``);
+    ``offsets``: fit a constant torque per joint (None: only without a rigid body).
+    """
+
+    friction: str
+    offsets: bool | None = None
+
+
+#: Per built-in robot (docs/cli.md). The MTM: friction in model coordinates with offsets
+#: (its cables and parallelogram; on trajectory two, joints 2 / 3: 17.2 / 24.1 % against
+#: 24.5 / 29.3 % with the wavelet network, docs/robots.md); the test stand: CV (its flights
+#: are too short to train a network on: ``TeststandOptions`` in estimation/teststand.py);
+#: the Omni, ``none`` and description files: the wavelet network (the library's default).
+BUILTIN_DEFAULTS: dict[RobotKind, RobotDefaults] = {
+    RobotKind.OMNI: RobotDefaults("wn"),
+    RobotKind.NONE: RobotDefaults("wn"),
+    RobotKind.DVRK_MTM: RobotDefaults("model-cv", offsets=True),
+    RobotKind.TESTSTAND: RobotDefaults("cv"),
+}
+
+
+def robot_defaults(name: str | RobotKind) -> RobotDefaults:
+    """Return the defaults of the robot called ``name`` (a description file: the library's)."""
+    if name in BUILTIN_ROBOTS:
+        return BUILTIN_DEFAULTS[RobotKind(name)]
+    return RobotDefaults("wn")
 
 
 def friction_only_description(n_joints: int) -> RobotDescription:

@@ -10,7 +10,12 @@ For one device (``--device``, the slave)::
                                               {"record": "stop"}
     queryable   omni/<device>/service/stats   JSON statistics (below)
     subscribes  omni/<device>/service/adapt   "on" / "off": online WN adaptation
+    publishes   omni/<device>/service/diagnostics  the residual watch (JSON, 1 Hz)
     token       omni/<device>/alive/service
+
+The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
+at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
+receive callback only appends the two payloads to its preallocated ring.
 
 Each joint state is estimated on in the Zenoh receive thread that delivers it (the compiled
 step of :class:`~teleop_force.estimation.estimator.ForceEstimator` costs microseconds: no
@@ -82,7 +87,13 @@ from teleop_force.errors import (
     ModelFileError,
     TeleopForceError,
 )
-from teleop_force.estimation.estimator import TRAINED_GROUND_WEIGHT, ForceEstimator
+from teleop_force.estimation.estimator import (
+    TRAINED_GROUND_WEIGHT,
+    ForceEstimator,
+    estimator_from_args,
+    estimator_metadata,
+)
+from teleop_force.estimation.flags import add_estimator_arguments
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.models import DEFAULT_MODEL_PATH
@@ -111,6 +122,7 @@ from teleop_force.service.counters import (
 )
 from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
+from teleop_force.service.residual_watch import ResidualWatch
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -154,6 +166,7 @@ class ServiceConfig:
             the recorded keys when ``record_path`` is set) and the same publication (one
             estimate-sized payload per joint state), doing no work: no decoding, no estimate,
             no recording. ``teleop-force bench`` compares the service's CPU with it.
+        residual_watch: Run the residual watch and publish its diagnostics.
 
     """
 
@@ -166,6 +179,7 @@ class ServiceConfig:
     record_dirs: tuple[Path, ...] = ()
     record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
     zenoh_floor: bool = False
+    residual_watch: bool = True
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -224,6 +238,16 @@ class ForceService:
         self.controls = ControlCounters()
         self.adaptation_state = AdaptationState(self.estimator)
         self.recording = RecordingState()
+        self.residual_watch = (
+            ResidualWatch(
+                self.n_joints,
+                device=self.config.device,
+                model_path=None if model_path is None else str(model_path),
+                recording_path=self._recording_path,
+            )
+            if self.config.residual_watch and not self.config.zenoh_floor
+            else None
+        )
         if self.config.adapt:
             self.set_adaptation(True)
         self._floor_payload = m.pack_force_estimate(
@@ -257,6 +281,7 @@ class ForceService:
             "friction": self.model.friction.kind,
             "model": str(self.model_path) if self.model_path is not None else "",
             "recorder": "teleop_force.service.force_service",
+            **estimator_metadata(self.model),  # a replay runs the same estimator
         }
         if self.config.master is not None:
             metadata["master_device"] = self.config.master
@@ -267,6 +292,11 @@ class ForceService:
         device = self.config.device
         session = self.session
         self._publisher = declare_data_publisher(session, self._estimate_key)
+        watch = self.residual_watch
+        if watch is not None:
+            diagnostics = session.declare_publisher(keys.service_diagnostics(device))
+            self._entities.append(diagnostics)
+            watch.start(diagnostics.put)
         self._control_thread = threading.Thread(
             target=self._serve_controls, name="controls", daemon=True
         )
@@ -308,6 +338,8 @@ class ForceService:
         with self._lock:
             already = self._closed
             self._closed = True
+        if self.residual_watch is not None:
+            self.residual_watch.stop()  # before its publisher goes
         entities, self._entities = self._entities, []
         recorded = self.recording.take_entities()
         undeclare_all(*reversed(entities), *recorded)
@@ -396,8 +428,11 @@ class ForceService:
         except MessageError as exc:
             self._count_malformed(key, exc)
             return
+        watch = self.residual_watch
         with self._lock:
             estimate = self._estimate_locked(seq, t_ns, values)
+            if estimate is not None and watch is not None:
+                watch.append(payload, estimate[0])  # two stores into its ring, nothing else
         recorder = self.recording.recorder  # read once: a control request may stop it meanwhile
         if recorder is not None:  # written by the recorder's thread, off this one
             recorder.submit(key, payload, arrival_ns)
@@ -456,6 +491,11 @@ class ForceService:
         put(self._publisher, payload)
         counters.count_published(seq, force, mask, n, out[3 + 4 * n] != 0.0, t_ns, started_s)
         return payload, published_ns
+
+    def _recording_path(self) -> str | None:
+        """Return the file the service records to, if it does (for the watch's command)."""
+        recorder = self.recording.recorder
+        return None if recorder is None else str(recorder.writer.path)
 
     def _log_once(self, message: str) -> None:
         if message not in self._logged and len(self._logged) < MAX_COUNTED_KEYS:
@@ -578,6 +618,8 @@ class ForceService:
             self.adaptation_state.follow(estimator)
             self.stream.reset()
             self.controls.loads += 1
+        if self.residual_watch is not None:
+            self.residual_watch.reset(model_path=str(path))  # a new baseline for the new model
         log(ROLE, f"now estimating with {path} ({model.friction.kind})")
         return path
 
@@ -659,6 +701,9 @@ class ForceService:
                 "memory": None if self.memory is None else self.memory.stats(),
                 "controls": self.controls.to_dict(),
                 "last_estimate": estimates.last_estimate_dict(),
+                "residual_watch": (
+                    None if self.residual_watch is None else self.residual_watch.stats()
+                ),
             }
 
 
@@ -753,9 +798,14 @@ def build_parser() -> argparse.ArgumentParser:
         f"(default {DEFAULT_FLUSH_INTERVAL_S:g})",
     )  # fmt: skip
     parser.add_argument("--adapt", action="store_true", help="start with online WN adaptation on")
+    add_estimator_arguments(parser)
     parser.add_argument(
         "--zenoh-floor", action="store_true",
         help="measure the Zenoh floor: same subscriptions and publication, no work (bench)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--no-residual-watch", action="store_true",
+        help="do not run the residual watch (omni/<device>/service/diagnostics)",
     )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
@@ -774,6 +824,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.duration is not None and not args.duration > 0:
             raise ConfigurationError(f"--duration must be > 0, got {args.duration}")
         model, model_path = load_model(args.model)
+        model = estimator_from_args(model, args)
         config = ServiceConfig(
             device=args.device,
             master=args.master,
@@ -783,6 +834,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             record_dirs=tuple(args.record_dir),
             record_flush_s=args.record_flush_s,
             zenoh_floor=args.zenoh_floor,
+            residual_watch=not args.no_residual_watch,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:

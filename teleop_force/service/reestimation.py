@@ -467,6 +467,7 @@ def _service_stats(
         "memory": None,
         "controls": {"requests": 0, "refused": 0, "last_refusal": ""},
         "last_estimate": last,
+        "residual_watch": None,  # batch: no live watch
         "zenoh_floor": None,
     }  # fmt: skip
 

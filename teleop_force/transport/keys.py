@@ -12,6 +12,7 @@ Each key carries the id of the device it is about, so several arms can share one
     omni/<device>/alive/<role>       liveliness token of one process (master, slave, service...)
     omni/<device>/service/adapt      subscriber: payload "on" / "off" switches online adaptation
     omni/<device>/service/control    queryable: JSON requests (start / stop a recording)
+    omni/<device>/service/diagnostics  ServiceDiagnostics (JSON, ~1 Hz): the residual watch
     omni/<device>/stats/<role>       queryable: JSON statistics of one process (master, slave...)
 
 The same strings name the channels of a recorded MCAP session (see :mod:`mcap_session`).
@@ -40,12 +41,15 @@ SERVICE_STATS: Final = "service/stats"
 ALIVE: Final = "alive"
 SERVICE_ADAPT: Final = "service/adapt"
 SERVICE_CONTROL: Final = "service/control"
+SERVICE_DIAGNOSTICS: Final = "service/diagnostics"
 STATS: Final = "stats"
 
 #: Topic kinds that carry a stream of messages (publisher / subscriber keys).
 DATA_KINDS: Final = (MEASURED_JS, SETPOINT_JS, MEASURED_CF, ESTIMATED_CF, STATUS)
 #: Kinds of the estimation service's queryables and control subscriber.
-SERVICE_KINDS: Final = (SERVICE_MODEL, SERVICE_STATS, SERVICE_ADAPT, SERVICE_CONTROL)
+SERVICE_KINDS: Final = (
+    SERVICE_MODEL, SERVICE_STATS, SERVICE_ADAPT, SERVICE_CONTROL, SERVICE_DIAGNOSTICS,
+)  # fmt: skip
 
 _FORBIDDEN_CHARS: Final = frozenset("/*$#?")
 
@@ -119,6 +123,11 @@ def service_adapt(device: str) -> str:
 def service_control(device: str) -> str:
     """Key of the queryable taking JSON control requests (recording) for ``device``'s service."""
     return _key(device, SERVICE_CONTROL)
+
+
+def service_diagnostics(device: str) -> str:
+    """Key on which the service publishes its residual watch's diagnostics (JSON, ~1 Hz)."""
+    return _key(device, SERVICE_DIAGNOSTICS)
 
 
 def process_stats(device: str, role: str) -> str:

@@ -69,10 +69,14 @@ Status (type 5), key ``omni/<device>/status``; size 19 + L
 | 16     | uint8     | state: 0 starting, 1 following, 2 holding, 3 stopped          |
 | 17     | uint16    | L, length of the reason in bytes                              |
 | 19     | bytes[L]  | reason, UTF-8                                                 |
+
+ServiceDiagnostics, key ``omni/<device>/service/diagnostics``: UTF-8 JSON (the residual
+watch's low-rate report; its fields in :class:`ServiceDiagnostics`), not a binary layout.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import operator
 import struct
@@ -953,7 +957,203 @@ def sequence_gap(previous_seq: int, seq: int) -> int:
     return (seq - previous_seq - 1) % (_UINT32_MAX + 1)
 
 
+# --------------------------------------------------------------------------- diagnostics (JSON)
+
+#: Version of the ServiceDiagnostics JSON layout (its ``version`` field).
+DIAGNOSTICS_VERSION: Final = 1
+#: States of the residual watch, as ServiceDiagnostics ``state``.
+DIAGNOSTIC_STATES: Final = ("baseline", "watching", "dependence")
+
+
+def _json_number(value: float) -> float | None:
+    """Return a float for JSON: ``None`` for NaN / infinity."""
+    return float(value) if math.isfinite(value) else None
+
+
+def _number_from_json(data: Mapping[str, Any], key: str) -> float:
+    value = data[key]
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise MessageError(f"ServiceDiagnostics: {key} must be a number or null, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosticCheck:
+    """The residual watch's test of one joint at its latest evaluation (1-based joint)."""
+
+    joint: int
+    rows: int
+    variable: str | None
+    p_value: float
+    effect_fraction: float
+    consecutive: int
+
+    def __post_init__(self) -> None:
+        """Validate the ranges; raise MessageError."""
+        _int(self.joint, "joint", 1, MAX_JOINTS)
+        _int(self.rows, "rows", 0, _INT64_MAX)
+        _int(self.consecutive, "consecutive", 0, _INT64_MAX)
+        if self.variable is not None and not isinstance(self.variable, str):
+            raise MessageError(f"variable must be a string or None, got {self.variable!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosticFinding:
+    """A persistent dependence the residual watch reports (1-based joint)."""
+
+    joint: int
+    variable: str
+    effect_fraction: float
+    effect_nm: float
+    p_value: float
+    since_s: float
+    holds: bool
+
+    def __post_init__(self) -> None:
+        """Validate the ranges; raise MessageError."""
+        _int(self.joint, "joint", 1, MAX_JOINTS)
+        if not isinstance(self.variable, str) or not self.variable:
+            raise MessageError(f"variable must be a non-empty string, got {self.variable!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceDiagnostics:
+    """The residual watch's report, key ``omni/<device>/service/diagnostics`` (JSON, ~1 Hz).
+
+    UTF-8 JSON (not the binary header: a low-rate, self-describing report like the service's
+    queryables), one object::
+
+        {"version": 1, "seq": 17, "t_ns": 1700000000000000000, "device": "slave",
+         "state": "dependence",            # baseline | watching | dependence
+         "stream_s": 78.0,                 # stream time of the newest sample tested [s]
+         "baseline_complete": true,
+         "rms_torque_nm": [0.02, 0.15, 0.02],   # per joint, over the baseline
+         "checks": [{"joint": 1, "rows": 350, "variable": "t", "p_value": 0.3,
+                     "effect_fraction": 0.01, "consecutive": 0}, ...],
+         "finding": {"joint": 2, "variable": "tau2", "effect_fraction": 0.11,
+                     "effect_nm": 0.017, "p_value": 1e-12, "since_s": 61.0, "holds": true},
+         "command": "teleop-force residual RECORDING --model /abs/model.json"}
+
+    ``finding`` is ``null`` and ``command`` empty until a dependence is reported; numbers
+    that are not finite are ``null``. ``seq`` counts the reports, ``t_ns`` is when this one
+    was made (ns since the UNIX epoch).
+    """
+
+    seq: int
+    t_ns: int
+    device: str
+    state: str
+    stream_s: float
+    baseline_complete: bool
+    rms_torque_nm: tuple[float, ...]
+    checks: tuple[DiagnosticCheck, ...]
+    finding: DiagnosticFinding | None
+    command: str
+
+    def __post_init__(self) -> None:
+        """Validate the fields; raise MessageError."""
+        _header_fields(self)
+        if self.state not in DIAGNOSTIC_STATES:
+            raise MessageError(f"state must be one of {DIAGNOSTIC_STATES}, got {self.state!r}")
+        if not isinstance(self.device, str) or not isinstance(self.command, str):
+            raise MessageError("device and command must be strings")
+        if (self.finding is None) != (self.command == ""):
+            raise MessageError("a finding comes with a command, and only a finding does")
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return the JSON object of the class docstring."""
+        finding = self.finding
+        return {
+            "version": DIAGNOSTICS_VERSION,
+            "seq": self.seq,
+            "t_ns": self.t_ns,
+            "device": self.device,
+            "state": self.state,
+            "stream_s": _json_number(self.stream_s),
+            "baseline_complete": bool(self.baseline_complete),
+            "rms_torque_nm": [_json_number(x) for x in self.rms_torque_nm],
+            "checks": [
+                {
+                    "joint": c.joint,
+                    "rows": c.rows,
+                    "variable": c.variable,
+                    "p_value": _json_number(c.p_value),
+                    "effect_fraction": _json_number(c.effect_fraction),
+                    "consecutive": c.consecutive,
+                }
+                for c in self.checks
+            ],
+            "finding": None
+            if finding is None
+            else {
+                "joint": finding.joint,
+                "variable": finding.variable,
+                "effect_fraction": _json_number(finding.effect_fraction),
+                "effect_nm": _json_number(finding.effect_nm),
+                "p_value": _json_number(finding.p_value),
+                "since_s": _json_number(finding.since_s),
+                "holds": bool(finding.holds),
+            },
+            "command": self.command,
+        }
+
+    def encode(self) -> bytes:
+        """UTF-8 JSON bytes (what is published)."""
+        return json.dumps(self.to_json_dict(), allow_nan=False).encode("utf-8")
+
+    @classmethod
+    def decode(cls, data: bytes | bytearray | memoryview) -> Self:
+        """Parse the published bytes; raise MessageError if malformed in any way."""
+        try:
+            obj = json.loads(bytes(_buffer(data)).decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            raise MessageError(f"ServiceDiagnostics: not UTF-8 JSON: {exc}") from None
+        if not isinstance(obj, dict) or obj.get("version") != DIAGNOSTICS_VERSION:
+            raise MessageError("ServiceDiagnostics: not an object of version 1")
+        try:
+            checks = tuple(
+                DiagnosticCheck(
+                    c["joint"],
+                    c["rows"],
+                    c["variable"],
+                    _number_from_json(c, "p_value"),
+                    _number_from_json(c, "effect_fraction"),
+                    c["consecutive"],
+                )
+                for c in obj["checks"]
+            )
+            f = obj["finding"]
+            finding = (
+                None
+                if f is None
+                else DiagnosticFinding(
+                    f["joint"],
+                    f["variable"],
+                    _number_from_json(f, "effect_fraction"),
+                    _number_from_json(f, "effect_nm"),
+                    _number_from_json(f, "p_value"),
+                    _number_from_json(f, "since_s"),
+                    bool(f["holds"]),
+                )
+            )
+            return cls(
+                seq=obj["seq"], t_ns=obj["t_ns"], device=obj["device"], state=obj["state"],
+                stream_s=_number_from_json(obj, "stream_s"),
+                baseline_complete=bool(obj["baseline_complete"]),
+                rms_torque_nm=tuple(
+                    math.nan if x is None else float(x) for x in obj["rms_torque_nm"]
+                ),
+                checks=checks, finding=finding, command=obj["command"],
+            )  # fmt: skip
+        except (KeyError, TypeError) as exc:
+            raise MessageError(f"ServiceDiagnostics: missing or wrong field: {exc}") from None
+
+
 __all__ = (
+    "DIAGNOSTICS_VERSION",
+    "DIAGNOSTIC_STATES",
     "HEADER_SIZE",
     "MAGIC",
     "MAX_JOINTS",
@@ -961,12 +1161,15 @@ __all__ = (
     "MESSAGE_CLASSES_BY_SCHEMA",
     "VERSION",
     "ContactForce",
+    "DiagnosticCheck",
+    "DiagnosticFinding",
     "ForceEstimateMessage",
     "JointSetpoint",
     "JointState",
     "Message",
     "MessageType",
     "SafetyState",
+    "ServiceDiagnostics",
     "Status",
     "decode",
     "pack_contact_force",

@@ -122,7 +122,7 @@ def test_residual_choices_are_the_libraries_own() -> None:
     residual = sub.choices["residual"]
     choices = {a.dest: tuple(a.choices) for a in residual._actions if a.choices}
     assert choices["effect_placement"] == ("auto", "motor", "model", "either")
-    assert choices["friction"] == ("cv", "coupled-cv", "model-cv")  # the contract's flags
+    assert choices["friction"] == ("cv", "coupled-cv", "model-cv", "wn")  # the contract's flags
     for placement in choices["effect_placement"]:
         assert ResidualOptions(effect_placement=placement).effect_placement is EffectPlacement(
             placement

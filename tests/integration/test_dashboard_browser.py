@@ -637,3 +637,37 @@ def test_dashboard_renders_updates_and_warns(system, page):
     log = (OUT / "dashboard_stderr.log").read_text()
     assert "render error" not in log and "Traceback" not in log, log[-2000:]
     assert 0 <= dashboard_lost <= 0.001 * fake.published, report
+
+
+def test_dashboard_shows_the_residual_watch_and_the_command(system, page):
+    """A diagnostics report with a finding (the service's residual watch) reaches the page."""
+    command = "teleop-force residual RECORDING --model /abs/omni_sim.json"
+    report = m.ServiceDiagnostics(
+        seq=1, t_ns=time.time_ns(), device=DEVICE, state="dependence", stream_s=90.0,
+        baseline_complete=True, rms_torque_nm=(0.02, 0.15, 0.02),
+        checks=(m.DiagnosticCheck(2, 150, "tau2", 1e-12, 0.08, 6),),
+        finding=m.DiagnosticFinding(2, "tau2", 0.08, 0.012, 1e-12, 66.0, True),
+        command=command,
+    )  # fmt: skip
+    publisher = system["fake"].session.declare_publisher(keys.service_diagnostics(DEVICE))
+    stop = threading.Event()
+
+    def publish() -> None:  # every second, as the service does
+        while not stop.is_set():
+            publisher.put(report.encode())
+            stop.wait(1.0)
+
+    thread = threading.Thread(target=publish, daemon=True)
+    thread.start()
+    try:
+        wait_js(
+            page,
+            "(c) => document.body.innerText.includes(c)",
+            "the residual watch's command",
+            arg=command,
+        )
+        assert "Dependence found" in page.inner_text("body")
+    finally:
+        stop.set()
+        thread.join(5.0)
+        publisher.undeclare()

@@ -204,6 +204,7 @@ def test_stats_keep_their_keys(session, model):
         "malformed",
         "latency_ms", "processing_ms", "on_ground_fraction", "on_ground_fraction_per_joint",
         "adaptation", "recording", "last_recording", "memory", "controls", "last_estimate",
+        "residual_watch",
     ]  # fmt: skip
     assert list(stats["model"]) == ["path", "robot", "friction", "loads"]
     assert list(stats["joint_states"]) == [
