@@ -33,7 +33,8 @@ def main() -> None:
     session = rigid_body_protocol(args.seconds, seed=5, effects=[make_effect(args.effect)])
     recording = tf.Recording(session.t_s, session.q_rad, session.tau_nm)
 
-    # Coupled Coulomb-viscous friction, as `teleop-force residual` uses by default.
+    # Coupled Coulomb-viscous friction (the CLI's default for the Omni is the wavelet network;
+    # the coupled CV keeps this example fast).
     options = ResidualOptions(friction="coupled-cv")
     report = tf.trace_residual([recording], tf.omni_description(), options)
 
