@@ -335,6 +335,21 @@ def linear_map_into(matrix: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
         out[i] = term_velocity(matrix[i], x)
 
 
+@njit_cached(inline="always")
+def _add_model_coordinate(
+    i: int, p: float, w: float, coupling: np.ndarray, momentum: np.ndarray, other: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Add model coordinate ``i``'s momentum ``p`` and torque ``w`` through ``T^T``."""
+    for j in range(coupling.shape[1]):
+        t = coupling[i, j]
+        if t == 1.0:
+            momentum[j] += p
+            other[j] += w
+        elif t != 0.0:
+            momentum[j] += t * p
+            other[j] += t * w
+
+
 @njit_cached()
 def rigid_terms_into(
     q: np.ndarray,
@@ -356,28 +371,16 @@ def rigid_terms_into(
     ``[joint, stiffness, rest angle]``. Writes ``momentum = T^T M v_model + rotor qd`` and
     ``other = T^T (g - C^T v_model) + springs``.
     """
-    n_model, n = coupling.shape
-    for j in range(n):
-        momentum[j] = rotor[j] * qd[j]
-        other[j] = 0.0
+    n_model = coupling.shape[0]
+    _start_motor_terms(qd, rotor, momentum, other)
     for i in range(n_model):
         p = 0.0
         w = 0.0
         for j in range(n_model):
             p += (mass[i, j] if i <= j else mass[j, i]) * v_model[j]
             w += coriolis[j, i] * v_model[j]
-        w = gravity[i] - w
-        for j in range(n):
-            t = coupling[i, j]
-            if t == 1.0:
-                momentum[j] += p
-                other[j] += w
-            elif t != 0.0:
-                momentum[j] += t * p
-                other[j] += t * w
-    for s in range(springs.shape[0]):
-        j = int(springs[s, 0])
-        other[j] += springs[s, 1] * (q[j] - springs[s, 2])
+        _add_model_coordinate(i, p, gravity[i] - w, coupling, momentum, other)
+    _add_springs(q, springs, other)
 
 
 @njit_cached()
@@ -397,21 +400,25 @@ def momenta_to_motor_into(
     (:func:`~teleop_force.estimation.rigid_chain.chain_momentum_into`), mapped to motor
     coordinates with ``T^T``, the rotor inertia and the springs.
     """
-    n_model, n = coupling.shape
-    for j in range(n):
+    _start_motor_terms(qd, rotor, momentum, other)
+    for i in range(coupling.shape[0]):
+        _add_model_coordinate(i, momenta[0, i], momenta[1, i], coupling, momentum, other)
+    _add_springs(q, springs, other)
+
+
+@njit_cached(inline="always")
+def _start_motor_terms(
+    qd: np.ndarray, rotor: np.ndarray, momentum: np.ndarray, other: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Start the motor-coordinate terms: the rotors' momentum, no torque."""
+    for j in range(momentum.size):
         momentum[j] = rotor[j] * qd[j]
         other[j] = 0.0
-    for i in range(n_model):
-        p = momenta[0, i]
-        w = momenta[1, i]
-        for j in range(n):
-            t = coupling[i, j]
-            if t == 1.0:
-                momentum[j] += p
-                other[j] += w
-            elif t != 0.0:
-                momentum[j] += t * p
-                other[j] += t * w
+
+
+@njit_cached(inline="always")
+def _add_springs(q: np.ndarray, springs: np.ndarray, other: np.ndarray) -> None:  # pragma: no cover
+    """Add the springs' torques (rows ``[joint, stiffness, rest angle]``)."""
     for s in range(springs.shape[0]):
         j = int(springs[s, 0])
         other[j] += springs[s, 1] * (q[j] - springs[s, 2])

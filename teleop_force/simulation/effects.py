@@ -430,6 +430,24 @@ def _highest_joint_read(effect: PlantEffect) -> int:
     return max(effect.joint, effect.inputs_joint)
 
 
+def checked_effects(
+    effects: Sequence[PlantEffect], n_joints: int = 3
+) -> tuple[tuple[PlantEffect, ...], np.ndarray | None]:
+    """Check a plant's effects; return them and their writable kernel table (or ``None``).
+
+    What a plant's ``effects`` setter does (both plant families): ConfigurationError for
+    something that is not a :class:`PlantEffect` or acts on a joint beyond ``n_joints``.
+    """
+    for effect in effects:
+        if not isinstance(effect, PlantEffect):
+            raise ConfigurationError(f"not a plant effect: {effect!r}")
+        if effect.joint >= n_joints:
+            raise ConfigurationError(f"{effect.name}: joint {effect.joint + 1} of {n_joints}")
+    checked = tuple(effects)
+    table = effect_kernel_table(checked, n_joints)
+    return checked, None if table is None else np.array(table)
+
+
 def effect_kernel_table(effects: Sequence[PlantEffect], n_joints: int = 3) -> np.ndarray | None:
     """Pack ``effects`` for :func:`effects_torque_slope` ((E, 7)), or ``None`` if one is unknown.
 

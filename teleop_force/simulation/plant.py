@@ -50,7 +50,7 @@ from teleop_force.robots.description import Robot, RobotDescription
 from teleop_force.robots.device import Device, DeviceReading, TorqueCommand
 from teleop_force.simulation import plant_kernels as kernels
 from teleop_force.simulation.contact import PlaneContact
-from teleop_force.simulation.effects import PlantEffect, effect_kernel_table
+from teleop_force.simulation.effects import PlantEffect, checked_effects
 from teleop_force.simulation.true_friction import TrueFriction
 
 _NOISE_BLOCK_TICKS = 4096
@@ -314,14 +314,7 @@ class SimulatedOmni(Device):
 
     @effects.setter
     def effects(self, effects: Sequence[PlantEffect]) -> None:
-        for effect in effects:
-            if not isinstance(effect, PlantEffect):
-                raise ConfigurationError(f"not a plant effect: {effect!r}")
-            if effect.joint >= 3:
-                raise ConfigurationError(f"{effect.name}: joint {effect.joint + 1} of 3")
-        self._effects = tuple(effects)
-        table = effect_kernel_table(self._effects, 3)
-        self._effect_table = None if table is None else np.array(table)
+        self._effects, self._effect_table = checked_effects(effects, 3)
 
     @property
     def contact(self) -> PlaneContact | None:

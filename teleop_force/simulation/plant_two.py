@@ -56,7 +56,7 @@ from teleop_force.simulation.chain_dynamics import chain_table, motor_terms
 from teleop_force.simulation.contact import PlaneContact, plane_contact_force
 from teleop_force.simulation.effects import (
     PlantEffect,
-    effect_kernel_table,
+    checked_effects,
     effects_torque_slope,
 )
 from teleop_force.simulation.floor_contact import HuntCrossleyFloor, floor_contact_force
@@ -492,14 +492,7 @@ class SimulatedOmniTwo(Device):
 
     @effects.setter
     def effects(self, effects: Sequence[PlantEffect]) -> None:
-        for effect in effects:
-            if not isinstance(effect, PlantEffect):
-                raise ConfigurationError(f"not a plant effect: {effect!r}")
-            if effect.joint >= 3:
-                raise ConfigurationError(f"{effect.name}: joint {effect.joint + 1} of 3")
-        self._effects = tuple(effects)
-        table = effect_kernel_table(self._effects, 3)
-        self._effect_table = None if table is None else np.array(table)
+        self._effects, self._effect_table = checked_effects(effects, 3)
 
     @property
     def contact(self) -> Contact | None:
