@@ -222,6 +222,9 @@ class ForceEstimator:
         self._omega_observer = _TWO_PI * config.observer_hz
         self._allocate()
         self._tables = self._fused_tables() if fused else None
+        #: The fused step's table arguments and, after them, its full argument tail (kept
+        #: until the tables are repacked: no tuple built per sample).
+        self._call_arguments: tuple[Any, tuple[Any, ...]] = (None, ())
         self.reset()
 
     @property
@@ -349,7 +352,13 @@ class ForceEstimator:
             tau_nm, (tuple, np.ndarray)
         ):
             q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
-        arguments = (*tables.call_arguments, self._out)
+        arguments = self._call_arguments
+        if arguments[0] is not tables.call_arguments:  # the tables were repacked
+            arguments = self._call_arguments = (
+                tables.call_arguments,
+                (*tables.call_arguments, self._out),
+            )
+        arguments = arguments[1]
         try:
             code = fused_step(self._state, t_s, q_rad, tau_nm, *arguments)
         except ValueError as exc:  # a wrong number of joints

@@ -476,10 +476,20 @@ class LyapunovAdapter:
         u_L: np.ndarray,
         *,
         reset: bool = True,
+        dt_s: np.ndarray | None = None,
     ) -> AdaptationResult:
-        """Adapt over a whole recording (N samples); ``reset`` first forgets signal states."""
+        """Adapt over a whole recording (N samples); ``reset`` first forgets signal states.
+
+        ``dt_s``: the sample intervals (N, > 0) as :meth:`step` would get them (the first one
+        since the previous call's last sample); default: from ``t_s``.
+        """
         t_arr = np.asarray(t_s, dtype=float).reshape(-1)
-        dt = regularised_intervals(t_arr)
+        if dt_s is None:
+            dt = regularised_intervals(t_arr)
+        else:
+            dt = np.ascontiguousarray(dt_s, dtype=float).reshape(-1)
+            if dt.shape != t_arr.shape or not np.all(dt > 0.0):
+                raise DataError(f"dt_s: expected {t_arr.size} intervals > 0")
         n_samples = t_arr.size
         arrays = []
         for name, value in (("qd", qd), ("p_L", p_L), ("u_L", u_L)):

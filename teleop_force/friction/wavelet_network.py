@@ -494,18 +494,18 @@ class _SingleSampleTorque:
         self.structure_version = network.structure_version
         self.coef_version = -1
         self.n = network.n_joints
-        # one column per distinct wavelet (inputs, m, n); `slot[k]` is active wavelet k's
-        slots: dict[tuple[object, ...], int] = {}
-        slot = np.empty(idx.size, dtype=np.int64)
-        first: list[int] = []
-        for k, g in enumerate(idx.tolist()):
-            spec = network.specs[int(pool.joint[g])]
-            key = (spec.inputs, int(pool.m[g]), *pool.n[g, : spec.d].tolist())
-            if key not in slots:
-                slots[key] = len(first)
-                first.append(g)
-            slot[k] = slots[key]
-        unique = np.asarray(first, dtype=np.int64)
+        # one column per distinct wavelet (inputs, m, n), in order of first appearance;
+        # `slot[k]` is active wavelet k's (vectorised: this runs when the structure changes)
+        slot = np.zeros(idx.size, dtype=np.int64)
+        unique = np.zeros(0, dtype=np.int64)
+        if idx.size:
+            keys = np.concatenate((pool.input_index[idx], pool.m[idx, None], pool.n[idx]), axis=1)
+            _, first_at, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+            appearance = np.argsort(first_at, kind="stable")
+            group_rank = np.empty(appearance.size, dtype=np.int64)
+            group_rank[appearance] = np.arange(appearance.size)
+            slot = group_rank[np.asarray(inverse).reshape(-1)]
+            unique = idx[first_at[appearance]]
         d = pool.dmax
         inputs = pool.input_index[unique].reshape(unique.size, d)
         order = np.lexsort(inputs.T[::-1]) if unique.size else np.zeros(0, dtype=np.int64)
@@ -513,11 +513,8 @@ class _SingleSampleTorque:
         rank[order] = np.arange(unique.size)
         unique = unique[order]
         self.inputs = np.ascontiguousarray(inputs[order], dtype=np.int64)
-        starts = [0] + [
-            c
-            for c in range(1, unique.size)
-            if not np.array_equal(self.inputs[c], self.inputs[c - 1])
-        ]
+        changed = np.any(self.inputs[1:] != self.inputs[:-1], axis=1)
+        starts = [0, *(np.flatnonzero(changed) + 1).tolist()]
         ends = [*starts[1:], unique.size]
         self.runs = np.array(list(zip(starts, ends, strict=True)) if unique.size else [],
                              dtype=np.int64).reshape(-1, 2)  # fmt: skip

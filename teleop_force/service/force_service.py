@@ -73,7 +73,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
@@ -104,6 +104,11 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.service.adaptation import (
+    DEFAULT_FORCE_THRESHOLD_N,
+    DEFAULT_GUARD_S,
+    AdaptationGate,
+)
 from teleop_force.service.adaptation_state import AdaptationState
 from teleop_force.service.controls import (
     ControlError,
@@ -167,6 +172,7 @@ class ServiceConfig:
             estimate-sized payload per joint state), doing no work: no decoding, no estimate,
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
+        adapt_gate: Which samples online adaptation learns from (free motion only).
 
     """
 
@@ -180,6 +186,7 @@ class ServiceConfig:
     record_flush_s: float = DEFAULT_FLUSH_INTERVAL_S
     zenoh_floor: bool = False
     residual_watch: bool = True
+    adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -236,7 +243,7 @@ class ForceService:
         self.estimates = EstimateCounters(self.n_joints)
         self.malformed = MalformedCounter()
         self.controls = ControlCounters()
-        self.adaptation_state = AdaptationState(self.estimator)
+        self.adaptation_state = AdaptationState(self.estimator, self.config.adapt_gate)
         self.recording = RecordingState()
         self.residual_watch = (
             ResidualWatch(
@@ -348,6 +355,8 @@ class ForceService:
         if self._control_thread is not None:
             self._queries.put(None)
             self._control_thread.join(DRAIN_TIMEOUT_S)
+        with self._lock:
+            self.adaptation_state.close()  # the adaptation worker's thread
         with self._lock:
             publisher, self._publisher = self._publisher, None
             undeclare_all(publisher)
@@ -464,7 +473,7 @@ class ForceService:
         try:
             out = estimator.step(t_s, q, tau).tolist()
             if adapt.enabled and online is not None:
-                online.update(t_s, np.array(q), np.array(tau))
+                online.submit(t_s, q, tau, out)  # a deque append; adapted by its worker
         except (DataError, ArithmeticError) as exc:
             counters.count_error(str(exc))
             stream.reset()
@@ -798,6 +807,15 @@ def build_parser() -> argparse.ArgumentParser:
         f"(default {DEFAULT_FLUSH_INTERVAL_S:g})",
     )  # fmt: skip
     parser.add_argument("--adapt", action="store_true", help="start with online WN adaptation on")
+    parser.add_argument(
+        "--adapt-free-force-n", type=float, default=DEFAULT_FORCE_THRESHOLD_N, metavar="N",
+        help="adapt only while the estimated tip force is below N newtons "
+        f"(default {DEFAULT_FORCE_THRESHOLD_N:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--adapt-guard-s", type=float, default=DEFAULT_GUARD_S, metavar="S",
+        help=f"and not within S s of a contact (default {DEFAULT_GUARD_S:g})",
+    )  # fmt: skip
     add_estimator_arguments(parser)
     parser.add_argument(
         "--zenoh-floor", action="store_true",
@@ -835,6 +853,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             record_flush_s=args.record_flush_s,
             zenoh_floor=args.zenoh_floor,
             residual_watch=not args.no_residual_watch,
+            adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:

@@ -12,6 +12,16 @@ records with ``--record``, plus the estimates it publishes) and writes them with
 crash-safe chunks, malformed payloads counted and dropped. ``teleop-force demo`` records
 with it.
 
+The subscriptions are FIFO channels (:func:`~teleop_force.transport.pubsub.
+declare_queue_subscriber`), not callbacks: Zenoh's receive thread queues each sample without
+running Python or taking the interpreter lock, and the recorder's drain thread takes what has
+arrived every :data:`DRAIN_INTERVAL_S` (20 ms) and hands it to the recorder in one go. A
+message's MCAP log time is when it was received, known to within that interval: its source
+stamp ``t_ns`` clamped into the interval in which it arrived: after the previous drain found
+its FIFO empty, before this drain took it (a publisher on this clock stamps it a fraction of
+a millisecond before it arrives). Log times therefore never decrease on a key, whatever clock
+stamped the messages.
+
 It answers ``omni/<device>/stats/recorder`` (JSON: the recorder's counters, the malformed
 messages by key) and holds the token ``omni/<device>/alive/recorder``; it stops on SIGINT /
 SIGTERM or ``--duration`` and closes the file (what was queued is written first).
@@ -21,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import struct
 import sys
 import threading
 import time
@@ -39,7 +50,7 @@ from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.transport import keys
 from teleop_force.transport.pubsub import (
     declare_json_queryable,
-    declare_subscriber,
+    declare_queue_subscriber,
     declare_token,
     undeclare_all,
 )
@@ -50,6 +61,12 @@ ROLE: Final = "recorder"
 RECORDED_KINDS: Final = (
     keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.ESTIMATED_CF, keys.STATUS,
 )  # fmt: skip
+#: How often the drain thread takes the samples waiting in the subscriptions' FIFOs [s].
+DRAIN_INTERVAL_S: Final = 0.02
+#: Samples a subscription's FIFO holds (60 s of one 1 kHz key): never reached while draining.
+FIFO_CAPACITY: Final = 60_000
+_STAMP: Final = struct.Struct("<q")  # t_ns in every message's header (docs/wire_format.md)
+_STAMP_OFFSET: Final = 8
 
 
 class SessionRecorder:
@@ -63,36 +80,70 @@ class SessionRecorder:
         self._lock = threading.Lock()
         self.recorder = BackgroundRecorder(writer, self._count_malformed)
         self._entities: list[Any] = []
+        self._queues: list[Any] = []
+        self._drained_ns: list[int] = []  # per FIFO: when its last drain found it empty
+        self._stop_drain = threading.Event()
+        self._drain_thread = threading.Thread(
+            target=self._drain_loop, name="recorder-drain", daemon=True
+        )
+        #: Samples taken from the subscriptions so far.
         self.received = 0
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:
             self.malformed.count(key, exc)
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Hand one sample to the recorder's thread (decoded and checked there)."""
-        arrival_ns = time.time_ns()
-        self.received += 1
-        self.recorder.submit(str(sample.key_expr), sample.payload.to_bytes(), arrival_ns)
+    def drain(self) -> int:
+        """Hand every sample waiting in the subscriptions' FIFOs to the recorder; return how many.
+
+        Log times: each sample's source stamp clamped into ``[end of this FIFO's previous
+        drain, when it was taken]`` (module docstring).
+        """
+        submit = self.recorder.submit
+        count = 0
+        for i, subscriber in enumerate(self._queues):
+            earliest_ns = self._drained_ns[i]
+            while (sample := subscriber.try_recv()) is not None:
+                taken_ns = time.time_ns()
+                payload = sample.payload.to_bytes()
+                stamp_ns = taken_ns
+                if len(payload) >= _STAMP_OFFSET + _STAMP.size:
+                    stamp_ns = _STAMP.unpack_from(payload, _STAMP_OFFSET)[0]
+                submit(str(sample.key_expr), payload, min(max(stamp_ns, earliest_ns), taken_ns))
+                count += 1
+            self._drained_ns[i] = time.time_ns()
+        self.received += count
+        return count
+
+    def _drain_loop(self) -> None:
+        while not self._stop_drain.wait(DRAIN_INTERVAL_S):
+            self.drain()
 
     def start(self) -> SessionRecorder:
         """Subscribe to the recorded keys, answer statistics, declare the token; return self."""
         for kind in RECORDED_KINDS:
-            self._entities.append(
-                declare_subscriber(
-                    self.session, keys.any_device(kind), self._on_sample, direct=True
-                )
+            subscriber = declare_queue_subscriber(
+                self.session, keys.any_device(kind), FIFO_CAPACITY
             )
+            self._queues.append(subscriber)
+            self._drained_ns.append(time.time_ns())
+            self._entities.append(subscriber)
         self._entities.append(
             declare_json_queryable(self.session, keys.process_stats(self.device, ROLE), self.stats)
         )
         self._entities.append(declare_token(self.session, keys.alive(self.device, ROLE)))
+        self._drain_thread.start()
         return self
 
     def close(self) -> None:
-        """Unsubscribe, then write what is queued and close the file."""
+        """Stop draining, take what arrived, unsubscribe, then write what is queued and close."""
+        self._stop_drain.set()
+        if self._drain_thread.is_alive():
+            self._drain_thread.join()
+        self.drain()
         entities, self._entities = self._entities, []
         undeclare_all(*reversed(entities))
+        self._queues, self._drained_ns = [], []
         self.recorder.close()
 
     def stats(self) -> dict[str, Any]:

@@ -66,6 +66,24 @@ def declare_subscriber(
         raise TransportError(f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}") from None
 
 
+def declare_queue_subscriber(
+    session: zenoh.Session, key: str, capacity: int
+) -> zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]:
+    """Declare a subscriber whose samples wait in a FIFO, taken with ``try_recv()`` later.
+
+    The FIFO is zenoh-python's ``FifoChannel(capacity)``; a thread of the caller's drains it.
+    No Python code runs per sample on Zenoh's receive thread (no interpreter lock taken
+    there): for receivers that want every message but not at once (the session recorder).
+    A full FIFO blocks Zenoh's receive thread, so drain it well before ``capacity``.
+    """
+    if capacity < 1:
+        raise ConfigurationError(f"{key}: FIFO capacity must be >= 1, got {capacity}")
+    try:
+        return session.declare_subscriber(key, zenoh.handlers.FifoChannel(int(capacity)))
+    except zenoh.ZError as exc:
+        raise TransportError(f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}") from None
+
+
 def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
     """Declare this process's liveliness token."""
     try:

@@ -1,5 +1,3 @@
-import time
-
 import numpy as np
 import pytest
 
@@ -247,15 +245,16 @@ def test_recording_validation(kwargs, problem):
 
 
 @pytest.mark.slow
-def test_240k_rows_read_quickly(tmp_path):
+def test_240k_rows_round_trip(tmp_path):
+    # a 4-minute 1 kHz recording (its speed is the bench's business, not a test's)
     rec = make_recording(n_samples=240_000, with_force=True)
     path = tmp_path / "big.csv"
     write_interchange_csv(path, rec)
-    start = time.perf_counter()
     back = read_interchange_csv(path)
-    elapsed = time.perf_counter() - start
     assert back.n_samples == 240_000
-    assert elapsed < 5.0, f"reading 240k rows took {elapsed:.2f} s"
+    np.testing.assert_array_equal(back.t_s, rec.t_s)
+    np.testing.assert_array_equal(back.q_rad, rec.q_rad)
+    np.testing.assert_array_equal(back.tau_nm, rec.tau_nm)
 
 
 def _cells_as_floats(text):

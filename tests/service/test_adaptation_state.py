@@ -1,34 +1,17 @@
 """The force service's adaptation switch: on, off, unavailable, and across model loads."""
 
-import dataclasses
-
 import pytest
 
 from teleop_force.errors import ConfigurationError
 from teleop_force.estimation.estimator import ForceEstimator
-from teleop_force.friction.wavelet_network import WaveletNetwork, omni_wavelet_specs
-from teleop_force.identification.dynamic_model import DynamicModel
-from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.service.adaptation_state import AdaptationState
+from tests.service.adaptation_cases import shipped_cv_model, wn_estimator
 
 
 @pytest.fixture(scope="module")
 def base():
     """The shipped model with its wavelet network's coupled-CV fallback as the friction."""
-    shipped = DynamicModel.load(DEFAULT_MODEL_PATH)
-    assert isinstance(shipped.friction, WaveletNetwork)
-    return dataclasses.replace(shipped, friction=shipped.friction.fallback)
-
-
-def wn_estimator(base: DynamicModel) -> ForceEstimator:
-    """An estimator of ``base`` with an (untrained) wavelet-network friction."""
-    network = WaveletNetwork(3, omni_wavelet_specs(), fallback=base.friction)
-    return ForceEstimator(
-        DynamicModel(
-            base.robot, base.n_joints, base.filter_config, base.base, base.base_values,
-            base.base_std, network, base.offsets_nm,
-        )
-    )  # fmt: skip
+    return shipped_cv_model()
 
 
 def test_adaptation_is_unavailable_without_a_wavelet_network(base):
@@ -38,9 +21,11 @@ def test_adaptation_is_unavailable_without_a_wavelet_network(base):
     with pytest.raises(ConfigurationError, match="coupled-cv"):
         state.switch(True, cv)
     state.switch(False, cv)
-    assert state.to_dict() == {
+    stats = state.to_dict()
+    assert {k: stats[k] for k in ("enabled", "available", "note", "samples")} == {
         "enabled": False, "available": False, "note": state.note, "samples": 0,
     }  # fmt: skip
+    assert stats["skipped_contact"] == 0 and stats["force_threshold_n"] == 0.5
 
 
 def test_adaptation_switches_and_follows_model_loads(base):
@@ -60,4 +45,7 @@ def test_adaptation_switches_and_follows_model_loads(base):
     assert not state.enabled and state.adaptation is None and "coupled-cv" in state.note
     state.follow(other)  # stays off
     assert not state.enabled and state.adaptation is None and state.note == ""
-    assert state.to_dict() == {"enabled": False, "available": True, "note": "", "samples": 0}
+    stats = state.to_dict()
+    assert (stats["enabled"], stats["available"], stats["note"]) == (False, True, "")
+    assert stats["samples"] == 0 and stats["skipped_contact"] == 0
+    assert not driver.running  # the old model's worker thread was stopped

@@ -14,6 +14,7 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.service.adaptation import AdaptationGate
 from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -160,6 +161,8 @@ def test_adaptation_runs_on_a_wavelet_network_model(session, cv_model):
         model.base_std, network, model.offsets_nm,
     )  # fmt: skip
     service = ForceService(session, wn_model, ServiceConfig(device=DEVICE)).start()
+    # these synthetic joint states read as > 0.5 N on the untrained network: open the gate
+    service.adaptation_state.gate = AdaptationGate(force_threshold_n=1e6, guard_s=0.0)
     got, sub = collect(session, keys.estimated_cf(DEVICE))
     pub = declare_data_publisher(session, keys.measured_js(DEVICE))
     try:
@@ -213,7 +216,11 @@ def test_stats_keep_their_keys(session, model):
     ]  # fmt: skip
     assert list(stats["estimates"]) == ["published", "singular", "errors", "last_error"]
     assert list(stats["malformed"]) == ["dropped", "by_key", "last"]
-    assert list(stats["adaptation"]) == ["enabled", "available", "note", "samples"]
+    assert list(stats["adaptation"]) == [
+        "enabled", "available", "note", "samples", "skipped_contact", "pending", "dropped",
+        "batches", "publications", "errors", "last_error", "batch_ms", "force_threshold_n",
+        "guard_s",
+    ]  # fmt: skip
     assert list(stats["controls"]) == ["requests", "refused", "last_refusal"]
     assert stats["on_ground_fraction"] is None and stats["last_estimate"] is None
     assert stats["recording"] is None and stats["last_recording"] is None
