@@ -77,7 +77,8 @@ def diagnostics_markdown(message: ServiceDiagnostics | None, age_s: float = 0.0)
         lines.append(
             f"**Dependence found** {still}: joint {finding.joint}'s external torque in free "
             f"motion depends on `{finding.variable}` since {finding.since_s:.0f} s "
-            f"(effect {100 * finding.effect_fraction:.1f} % of the joint's RMS torque, "
+            f"(effect {100 * finding.effect_fraction:.1f} % of the joint's RMS torque in "
+            f"free motion, "
             f"{1000 * finding.effect_nm:.1f} mN m, p = {finding.p_value:.1e})."
         )
         lines.append("")

@@ -86,7 +86,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from teleop_force.identification.dynamic_model import DynamicModel
 
     model = estimator_from_args(DynamicModel.load(args.model), args)
-    recordings = _load_recordings(args.data, model.n_joints, robot=model.robot)
+    recordings = _load_recordings(args.data, model.n_joints, robot=_reader_robot(model.robot))
     # evaluate_model's figures, from the streaming estimator's numbers computed in batch
     result = evaluate_recordings(model, recordings)
     payload = {
@@ -128,7 +128,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from teleop_force.identification.dynamic_model import DynamicModel
 
     model = estimator_from_args(DynamicModel.load(args.model), args)
-    (recording,) = _load_recordings([args.data], model.n_joints, robot=model.robot)
+    (recording,) = _load_recordings([args.data], model.n_joints, robot=_reader_robot(model.robot))
     # the streaming estimator's numbers, computed over the whole recording at once
     estimates = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
     _write_force_table(Path(args.output), recording.t_s, estimates.force_tip_in_base_n)

@@ -78,9 +78,12 @@ def least_squares(
     regressor: np.ndarray,
     torque: np.ndarray,
     names: list[str] | tuple[str, ...],
-    ridge: float = 0.0,
+    ridge: float | np.ndarray = 0.0,
 ) -> Identification:
     """Joint-weighted least squares of ``torque (N, n) = regressor (N, n, p) @ theta``.
+
+    ``ridge`` is added to the diagonal of the column-scaled normal equations: one value for
+    every column, or one per column.
 
     Each joint's rows are weighted by the inverse of its residual standard deviation from an
     unweighted first pass, so joints with larger noise do not dominate. Standard deviations
@@ -103,7 +106,7 @@ def least_squares(
         scale = np.linalg.norm(a, axis=0)
         scale[scale == 0.0] = 1.0
         a_scaled = a / scale
-        gram = a_scaled.T @ a_scaled + ridge * np.eye(n_params)
+        gram = a_scaled.T @ a_scaled + np.diag(np.broadcast_to(ridge, (n_params,)))
         theta_scaled = np.linalg.solve(gram, a_scaled.T @ b)
         theta = theta_scaled / scale
         residual = torque - np.einsum("kjp,p->kj", regressor, theta)

@@ -47,7 +47,7 @@ from teleop_force.residual.candidates import (
     is_friction_shaped,
 )
 from teleop_force.residual.controls import control_design, control_gain
-from teleop_force.residual.model_fits import Baseline, final_model, fit_baseline, with_network
+from teleop_force.residual.model_fits import Baseline, fit_baseline, fitted_model
 from teleop_force.residual.options import EffectPlacement, ResidualOptions
 from teleop_force.residual.payload import PayloadCandidate, confirm_payload
 from teleop_force.residual.placement import effect_reaches, placed_columns
@@ -213,9 +213,7 @@ def trace_residual(
     samples = select_samples(baseline.prepared, options, baseline.rigid_values)
     scorers = _scorers(samples, baseline, description, options)
     search = _search(samples, scorers, options, offsets)
-    model = final_model(baseline, description, config, search.accepted)
-    if baseline.network is not None:
-        model = with_network(model, baseline.prepared, description)
+    model = fitted_model(baseline, description, config, search.accepted, options.ridge)
     return ResidualReport(
         before=search.before,
         after=search.after,

@@ -64,6 +64,7 @@ class ResidualOptions:
     #: Friction of the model the residual is taken from; None: the robot's default
     #: (:func:`~teleop_force.robots.registry.robot_defaults`, :meth:`for_robot`).
     friction: FrictionKind | None = None
+    #: Ridge of the held-out fits (column-scaled) and of the final fit's effect columns.
     ridge: float = 1e-4
     #: Fit a constant torque per joint; None: the robot's default (only without rigid-body
     #: terms, with them on the dVRK MTM).

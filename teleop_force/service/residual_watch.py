@@ -17,39 +17,59 @@ by the garbage collector). Everything else runs in the watch's own thread every
 Free motion (from published data only): a sample is *free* when the estimated tip force is
 finite and below :attr:`WatchConfig.free_force_n` (0.5 N), and no sample within
 :attr:`WatchConfig.guard_s` (0.3 s) on either side is above it or singular (contact and its
-transients are left out); joint ``j``'s regression uses the free samples at which joint ``j``
-moves faster than :attr:`WatchConfig.min_speed_rad_s` (0.08 rad/s: its friction's sign is
-defined, away from the pre-sliding regime no model here describes), and none within
-:attr:`WatchConfig.settle_s` of a stream (re)start. Velocities and accelerations are central
-differences of ``q`` (over 20 and 50 ms): the watch uses the angles, not the published ``qd``.
+transients are left out); joint ``j``'s rows are the free ones at which joint ``j`` moves
+faster than :attr:`WatchConfig.min_speed_rad_s` (0.08 rad/s: its friction's sign is defined,
+away from the pre-sliding regime no model here describes), and none within
+:attr:`WatchConfig.settle_s` of a stream (re)start. Rows are taken at
+:attr:`WatchConfig.decimate_hz` (50 Hz); each row's ``tau_ext`` is the mean over its 20 ms
+(anti-aliasing: a point sample would keep the estimate's noise above 25 Hz, which is most of
+it on the Omni's base joint). Velocities and accelerations are central differences of ``q``
+(over 20 and 50 ms): the watch uses the angles, not the published ``qd``.
 
-The test (a Chow test per joint and candidate variable): the free motion of the first
-:attr:`WatchConfig.baseline_s` seconds after :attr:`WatchConfig.warmup_s` is the session's
-*baseline* (frozen then); the last :attr:`WatchConfig.window_s` seconds are the *current
-window*. Both, decimated to :attr:`WatchConfig.decimate_hz`, are regressed together::
+The test (per joint): the free motion of the first :attr:`WatchConfig.baseline_s` (50 s)
+after :attr:`WatchConfig.warmup_s` is the session's *baseline* (frozen then); the last
+:attr:`WatchConfig.window_s` (30 s) are the *current window*. The two are compared only where
+their states overlap (matched support): a window's row is *covered* when at least
+:attr:`WatchConfig.match_min` (5) baseline rows are its neighbours (every angle within
+:attr:`WatchConfig.match_radius_rad`, 0.15 rad, and joint ``j`` moving in the same direction);
+a row in a pose the baseline never visited is not compared at all, so the model's steady,
+pose-dependent misfit cannot pass for a change when the operator wanders elsewhere. For each
+covered row the watch takes the difference ``e`` between its ``tau_ext_j`` and its
+neighbours' mean, and regresses::
 
-    tau_ext_j = phi(x) b  +  D * G_v(x) g          (D = 1 in the current window, 0 in the baseline)
+    e = (x - x_nbr) a  +  G_v g
 
-``phi`` is shared (the model's steady misfit: 1, the accelerations, sgn qd_k, qd_k, qd_k qd_l,
-a cubic polynomial of the angles, sgn qd_j times each angle; never the motor torque, of which
-``tau_ext`` is a part), ``G_v`` the form of a change in variable ``v``: ``t`` (a level change
-since the baseline, and a trend in time: D, D sgn qd_j, D t, D t sgn qd_j), ``q<k>`` and
-``q2-q3`` (five hat functions of the angle, alone and times sgn qd_j), ``tau<j>`` (D,
-D sgn qd_j, D tau_j, D |tau_j| sgn qd_j, with the low-passed motor torque). The F-test of
-``g = 0`` is corrected for the residuals' lag-1 autocorrelation ``rho`` (F and the residual
-degrees of freedom divided by ``(1 + rho) / (1 - rho)``) and Bonferroni-corrected over the
-candidates. A joint *fires* at one evaluation when the best candidate's corrected p-value is
-below :attr:`WatchConfig.alpha` (1e-8) and the size of the change it fits (RMS of ``G_v g``
-over the current window) is at least :attr:`WatchConfig.min_effect_fraction` (5 %) of the
-joint's RMS motor torque (low-passed, every sample after the warm-up, contact included). The
-variable named is the candidate that improves most significantly on a level change alone
-(nested F-test, p below :attr:`WatchConfig.alpha_name`), else ``t`` (the torque changed since
-the baseline). A dependence is reported once a joint fires in :attr:`WatchConfig.persistence`
-(4) consecutive evaluations; it then stays reported (``finding``, with ``holds`` telling
-whether the latest evaluation still fired) until :meth:`ResidualWatch.reset` (a model is
-loaded). Because it compares the session with its own beginning, the watch sees what changes
-during a session; an effect present from the first sample is the job of
-``teleop-force residual RECORDING --model MODEL`` (the command the diagnostics name).
+``x - x_nbr`` (the row's angles, joint velocity and acceleration less its neighbours' mean:
+the local slope of the steady misfit) is fitted, never tested; ``G_v`` is the form of a change
+in variable ``v``: ``t`` (a level change since the baseline, and a trend: 1, sgn qd_j, t,
+t sgn qd_j), ``q<k>`` and ``q2-q3`` (five hat functions of the angle, alone and times
+sgn qd_j), ``tau<j>`` (1, sgn qd_j, tau_j, |tau_j| sgn qd_j, with the low-passed motor
+torque); ``level`` is (1, sgn qd_j) alone. The F-test of ``g = 0`` allows for the residual's
+autocorrelation (F and the residual degrees of freedom divided by the Bartlett-weighted
+variance inflation ``1 + 2 sum_l (1 - l / (L + 1)) rho_l``, lags up to
+:attr:`WatchConfig.correlation_s`, 1 s: about one free move, over which the misfit is
+correlated) and is Bonferroni-corrected over the candidates. A joint *fires* at one
+evaluation when the best candidate's corrected p-value is below :attr:`WatchConfig.alpha`
+(1e-8) and the size of the change it explains (RMS over the covered rows of what it adds to
+the fit, less what noise alone would add) is at least :attr:`WatchConfig.min_effect_fraction`
+(5 %) of the joint's RMS torque where it is measured: the low-passed motor torque over the
+joint's rows since the warm-up (free motion, the joint moving). Not over the whole session:
+contact multiplies a joint's torque (the Omni's second joint: 0.15 N m RMS with the
+palpation's contact, 0.03 N m in its free motion), and a change is judged against the torque
+the joint carries in the motion the watch sees. The variable
+named is the candidate that improves most significantly on a level change alone (nested
+F-test, p below :attr:`WatchConfig.alpha_name`), else ``t`` (the torque changed since the
+baseline). A dependence is reported once a joint fires in :attr:`WatchConfig.persistence` (4)
+consecutive evaluations; it then stays reported (``finding``, with ``holds`` telling whether
+the latest evaluation still fired) until :meth:`ResidualWatch.reset` (a model is loaded).
+Because it compares the session with its own beginning, the watch sees what changes during
+a session, in the poses of the baseline; an effect present from the first sample is the job
+of ``teleop-force residual RECORDING --model MODEL`` (the command the diagnostics name).
+
+Cost: one evaluation decodes about a second of payloads and solves, per joint, about ten
+least-squares problems of a few hundred rows and at most 15 columns, plus one
+(window rows x baseline rows) neighbour search: milliseconds per second of stream
+(``benchmarks/watch_offline.py`` prints the time per call).
 
 Published: :class:`~teleop_force.transport.messages.ServiceDiagnostics` (JSON) on
 ``omni/<device>/service/diagnostics`` after every evaluation.
@@ -104,15 +124,20 @@ class WatchConfig:
         settle_s: Samples this close after a stream (re)start are left out.
         alpha: Corrected p-value below which a joint fires (with the effect size).
         alpha_name: Nested p-value below which a specific variable is named (else ``t``).
-        min_effect_fraction: Smallest change reported, in units of the joint's RMS torque.
+        min_effect_fraction: Smallest change reported, in units of the joint's RMS torque
+            over its free rows (where the change is measured).
         persistence: Consecutive firing evaluations before a dependence is reported.
-        min_rows: Fewest rows of a joint in the current window for a test.
+        min_rows: Fewest covered rows of a joint in the current window for a test.
+        match_radius_rad: A baseline row is a neighbour of a window's row when every angle
+            is within this of the row's (and the joint moves in the same direction).
+        match_min: Fewest neighbours for a window's row to be covered (compared).
+        correlation_s: Longest lag of the residual's autocorrelation the test allows for.
         ring_capacity: Samples the ring keeps (a power of two).
 
     """
 
     period_s: float = 1.0
-    window_s: float = 20.0
+    window_s: float = 30.0
     warmup_s: float = 5.0
     baseline_s: float = 50.0
     decimate_hz: float = 50.0
@@ -124,20 +149,23 @@ class WatchConfig:
     alpha_name: float = 1e-4
     min_effect_fraction: float = 0.05
     persistence: int = 4
-    min_rows: int = 60
+    min_rows: int = 40
+    match_radius_rad: float = 0.15
+    match_min: int = 5
+    correlation_s: float = 1.0
     ring_capacity: int = DEFAULT_RING_CAPACITY
 
     def __post_init__(self) -> None:
         """Check every value's range; raise ConfigurationError."""
         positive = (
             "period_s", "window_s", "baseline_s", "decimate_hz", "free_force_n",
-            "alpha", "alpha_name", "min_effect_fraction",
+            "alpha", "alpha_name", "min_effect_fraction", "match_radius_rad",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
                 raise ConfigurationError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("warmup_s", "guard_s", "min_speed_rad_s", "settle_s"):
+        for name in ("warmup_s", "guard_s", "min_speed_rad_s", "settle_s", "correlation_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
                 raise ConfigurationError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -147,6 +175,8 @@ class WatchConfig:
             raise ConfigurationError(f"persistence must be an integer >= 1, got {self.persistence}")
         if not (isinstance(self.min_rows, int) and self.min_rows >= 20):
             raise ConfigurationError(f"min_rows must be an integer >= 20, got {self.min_rows}")
+        if not (isinstance(self.match_min, int) and self.match_min >= 1):
+            raise ConfigurationError(f"match_min must be an integer >= 1, got {self.match_min}")
         capacity = self.ring_capacity
         if not (isinstance(capacity, int) and capacity >= 1024 and capacity & (capacity - 1) == 0):
             raise ConfigurationError(f"ring_capacity must be a power of two >= 1024: {capacity}")
@@ -302,6 +332,13 @@ _ROW_FIELDS: Final = (
 )  # fmt: skip
 
 
+def _block_mean(x: np.ndarray, idx: np.ndarray, step: int) -> np.ndarray:
+    """Mean of ``x`` over the ``step`` samples centred on each of ``idx`` (anti-aliasing)."""
+    before = step // 2
+    c = np.concatenate((np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)))
+    return (c[idx + (step - before)] - c[idx - before]) / step
+
+
 def _dilate(mask: np.ndarray, half: int) -> np.ndarray:
     """``mask`` widened by ``half`` samples on both sides (a running maximum)."""
     if half <= 0 or not mask.any():
@@ -320,10 +357,11 @@ class Check:
 
     Attributes:
         joint: Joint index (0-based).
-        rows: Rows of the current window tested.
-        variable: The variable named (``None``: no test, too few rows).
+        rows: Rows of the current window tested (those the baseline covers).
+        variable: The variable named (``None``: no test, too few covered rows).
         p_value: Bonferroni-corrected p-value of the best candidate (1.0 without a test).
-        effect_nm: RMS of the change fitted over the current window [N m].
+        effect_nm: RMS of what the best candidate explains over the covered rows, less what
+            noise alone would [N m].
         effect_fraction: ``effect_nm`` over the joint's RMS torque.
         fired: Whether this evaluation counts toward a report.
 
@@ -366,13 +404,13 @@ class Finding:
 
 @dataclass
 class _Effort:
-    """Running sum of the squared low-passed motor torque (the joints' RMS torque)."""
+    """Running sums of each joint's squared low-passed motor torque over its free rows."""
 
     sum_sq: np.ndarray
-    count: int = 0
+    count: np.ndarray
 
     def rms_nm(self) -> np.ndarray:
-        return np.sqrt(self.sum_sq / max(self.count, 1))
+        return np.sqrt(self.sum_sq / np.maximum(self.count, 1))
 
 
 class ResidualWatch:
@@ -423,7 +461,7 @@ class ResidualWatch:
         self._kept: list[Rows] = []  # the window's rows, oldest first
         self._baseline_rows: list[Rows] = []
         self._baseline: Rows | None = None
-        self._effort = _Effort(np.zeros(self.n))
+        self._effort = _Effort(np.zeros(self.n), np.zeros(self.n, dtype=np.int64))
         self._baseline_complete = False
         self._consecutive = [0] * self.n
         self._first_fired_s = [math.nan] * self.n
@@ -587,16 +625,16 @@ class ResidualWatch:
             qd_rad_s=qd,
             qdd_rad_s2=qdd,
             tau_motor_nm=s.tau_motor_nm[idx],
-            tau_ext_nm=s.tau_ext_nm[idx],
+            tau_ext_nm=_block_mean(s.tau_ext_nm, idx, step),
             free=free,
         )
 
     def _add_rows(self, rows: Rows) -> None:
         config = self.config
-        warm = rows.t_s >= config.warmup_s
-        effort = rows.tau_motor_nm[warm]
+        # each joint's RMS torque over the rows its test uses (free, the joint moving)
+        effort = np.where(rows.free, rows.tau_motor_nm, 0.0)
         self._effort.sum_sq += np.sum(effort * effort, axis=0)
-        self._effort.count += int(warm.sum())
+        self._effort.count += np.sum(rows.free, axis=0)
         rows = rows.take(np.any(rows.free, axis=1))
         end = config.warmup_s + config.baseline_s
         in_baseline = rows.t_s < end
@@ -629,30 +667,29 @@ class ResidualWatch:
         return tuple(self._test_joint(j, base, current, float(rms[j])) for j in range(self.n))
 
     def _test_joint(self, j: int, base: Rows, current: Rows, rms_nm: float) -> Check:
-        """Run the Chow test of joint ``j``: baseline vs current window, every candidate."""
+        """Test joint ``j``: the current window against the baseline where their states overlap."""
         config = self.config
         b = base.take(base.free[:, j])
         c = current.take(current.free[:, j])
-        if c.t_s.size < config.min_rows:
-            return Check(joint=j, rows=int(c.t_s.size))
-        both = Rows.concat((b, c))
-        d = np.concatenate((np.zeros(b.t_s.size), np.ones(c.t_s.size)))
-        y = both.tau_ext_nm[:, j]
-        shared = _shared_design(both, j)
-        candidates = _candidates(both, j, d, float(c.t_s[0]))
-        restricted = _fit(shared, y, both.run)
-        best: tuple[float, str, np.ndarray] | None = None
+        matched = _match(b, c, j, config.match_radius_rad, config.match_min)
+        if matched is None or matched.rows < config.min_rows:
+            return Check(joint=j, rows=0 if matched is None else matched.rows)
+        e, nuisance = matched.difference, matched.nuisance
+        cc = c.take(matched.keep)
+        step_s = 1.0 / config.decimate_hz
+        pairs = _lag_pairs(cc.run, cc.t_s, step_s, round(config.correlation_s / step_s))
+        candidates = _candidates(cc, j)
+        restricted = _fit(nuisance, e, pairs)
+        best: tuple[float, str, float] | None = None
         fits: dict[str, _Fit] = {}
         for name, columns in candidates:
-            full = _fit(np.hstack((shared, columns)), y, both.run)
+            full = _fit(np.hstack((nuisance, columns)), e, pairs)
             fits[name] = full
             p = _f_test(restricted, full) * len(candidates)
             if best is None or p < best[0]:
-                change = columns @ full.coef[shared.shape[1] :]
-                best = (p, name, change[d == 1.0])
+                best = (p, name, _effect_nm(restricted, full))
         assert best is not None
-        p_value, _, change = best
-        effect_nm = float(np.sqrt(np.mean(change * change)))
+        p_value, _, effect_nm = best
         # the variable named: the candidate that improves most on a level change alone
         specific = [(k, f) for k, f in fits.items() if k != "level"]
         named, named_p = "level", 1.0
@@ -665,7 +702,7 @@ class ResidualWatch:
         fired = p_value < config.alpha and fraction >= config.min_effect_fraction
         return Check(
             joint=j,
-            rows=int(c.t_s.size),
+            rows=matched.rows,
             variable=variable,
             p_value=min(1.0, p_value),
             effect_nm=effect_nm,
@@ -723,7 +760,7 @@ class ResidualWatch:
     def diagnostics(self) -> m.ServiceDiagnostics:
         """Return the diagnostics message of the latest evaluation."""
         self._seq = (self._seq + 1) & 0xFFFF_FFFF
-        rms = self._effort.rms_nm() if self._effort.count else None
+        rms = self._effort.rms_nm() if self._effort.count.any() else None
         finding = self._headline()
         return m.ServiceDiagnostics(
             seq=self._seq,
@@ -804,23 +841,50 @@ class _Fit:
     inflation: float
 
 
-def _fit(x: np.ndarray, y: np.ndarray, run: np.ndarray) -> _Fit:
-    """Least squares with column scaling; the residual's AR(1) variance inflation."""
+def _effect_nm(restricted: _Fit, full: _Fit) -> float:
+    """RMS of what the extra columns of ``full`` explain, less what noise alone would."""
+    extra = full.columns - restricted.columns
+    noise = full.ssr / max(full.rows - full.columns, 1) * full.inflation
+    explained = (restricted.ssr - full.ssr - noise * max(extra, 0)) / max(full.rows, 1)
+    return math.sqrt(max(explained, 0.0))
+
+
+def _lag_pairs(run: np.ndarray, t_s: np.ndarray, step_s: float, lags: int) -> list[np.ndarray]:
+    """For each lag ``l`` in 1..``lags``: the rows ``i`` whose row ``i + l`` is ``l`` steps on."""
+    tick = np.round(t_s / step_s).astype(np.int64)
+    pairs = []
+    for lag in range(1, min(lags, tick.size - 1) + 1):
+        ok = (run[lag:] == run[:-lag]) & (tick[lag:] - tick[:-lag] == lag)
+        pairs.append(np.flatnonzero(ok))
+    return pairs
+
+
+def _fit(x: np.ndarray, y: np.ndarray, pairs: Sequence[np.ndarray]) -> _Fit:
+    """Least squares with column scaling; the residual's variance inflation (Bartlett).
+
+    The inflation ``1 + 2 sum_l (1 - l / (L + 1)) rho_l`` over the lags of ``pairs`` (rows that
+    are ``l`` decimation steps apart in one run), each ``rho_l`` clipped to [0, 1).
+    """
     scale = np.sqrt(np.mean(x * x, axis=0))
     scale[scale < 1e-12] = 1.0
     xs = x / scale
     coef, _, rank, _ = np.linalg.lstsq(xs, y, rcond=1e-10)
     residual = y - xs @ coef
-    same = run[1:] == run[:-1]
-    num = float(np.sum(residual[1:][same] * residual[:-1][same]))
     den = float(np.sum(residual * residual))
-    rho = min(max(num / den, 0.0), 0.95) if den > 0.0 else 0.0
+    inflation = 1.0
+    if den > 0.0:
+        weight = len(pairs) + 1
+        for lag, i in enumerate(pairs, start=1):
+            if i.size:
+                num = float(np.dot(residual[i], residual[i + lag]))
+                rho = min(max(num / den * (y.size / i.size), 0.0), 0.95)
+                inflation += 2.0 * (1.0 - lag / weight) * rho
     return _Fit(
         coef=coef / scale,
         ssr=den,
         rows=y.size,
         columns=int(rank),
-        inflation=(1.0 + rho) / (1.0 - rho),
+        inflation=inflation,
     )
 
 
@@ -839,28 +903,56 @@ def _sign(v: np.ndarray) -> np.ndarray:
     return np.tanh(v / _SIGN_WIDTH_RAD_S)
 
 
-def _shared_design(rows: Rows, j: int) -> np.ndarray:
-    """``phi``: the steady relation of ``tau_ext_j`` shared by the baseline and the window.
+@dataclass(frozen=True, eq=False)
+class _Matched:
+    """The current window's rows that the baseline covers, as differences from it.
 
-    What the model's own misfit may depend on (never the motor torque, of which ``tau_ext``
-    is a part): the velocities, their signs and products, the accelerations, a cubic
-    polynomial of the angles and the joint's friction sign times each angle.
+    Attributes:
+        keep: (C,) which of the window's rows are covered.
+        difference: ``tau_ext`` of each covered row less the mean of its baseline neighbours.
+        nuisance: the row's state less its neighbours' mean (angles, velocity, acceleration
+            of the joint): the local slope of the steady misfit, fitted, never tested.
+        run: run ids of the covered rows (for the autocorrelation).
+
     """
-    q, qd = rows.q_rad, rows.qd_rad_s
-    n = q.shape[1]
-    s_j = _sign(qd[:, j])
-    cols = [np.ones(q.shape[0])]
-    cols += [rows.qdd_rad_s2[:, k] for k in range(n)]
-    cols += [_sign(qd[:, k]) for k in range(n)]
-    cols += [qd[:, k] for k in range(n)]
-    cols += [qd[:, k] * qd[:, i2] for k in range(n) for i2 in range(k, n)]
-    qc = q - np.mean(q, axis=0)
-    cols += [qc[:, k] for k in range(n)]
-    cols += [s_j * qc[:, k] for k in range(n)]
-    pairs = [(k, i2) for k in range(n) for i2 in range(k, n)]
-    cols += [qc[:, k] * qc[:, i2] for k, i2 in pairs]
-    cols += [qc[:, k] * qc[:, i2] * qc[:, i] for k, i2 in pairs for i in range(i2, n)]
-    return np.column_stack(cols)
+
+    keep: np.ndarray
+    difference: np.ndarray
+    nuisance: np.ndarray
+    run: np.ndarray
+
+    @property
+    def rows(self) -> int:
+        return int(self.difference.size)
+
+
+def _match(base: Rows, current: Rows, j: int, radius_rad: float, least: int) -> _Matched | None:
+    """Pair each current row of joint ``j`` with the baseline rows near its state.
+
+    Neighbours: baseline rows whose every angle is within ``radius_rad`` of the row's and whose
+    joint ``j`` moves in the same direction; a row with fewer than ``least`` is not covered
+    (its state was not seen in the baseline: no comparison there).
+    """
+    if base.t_s.size < least or current.t_s.size == 0:
+        return None
+    qb, qc = base.q_rad, current.q_rad
+    near = np.ones((qc.shape[0], qb.shape[0]), dtype=bool)
+    for k in range(qb.shape[1]):
+        near &= np.abs(qc[:, k, None] - qb[None, :, k]) <= radius_rad
+    near &= (current.qd_rad_s[:, j, None] > 0.0) == (base.qd_rad_s[None, :, j] > 0.0)
+    count = near.sum(axis=1)
+    keep = count >= least
+    if not keep.any():
+        return _Matched(keep, np.zeros(0), np.zeros((0, 0)), np.zeros(0, dtype=np.int64))
+    weights = near[keep] / count[keep, None]
+    state_b = np.column_stack((qb, base.qd_rad_s[:, j], base.qdd_rad_s2[:, j]))
+    state_c = np.column_stack((qc, current.qd_rad_s[:, j], current.qdd_rad_s2[:, j]))[keep]
+    return _Matched(
+        keep=keep,
+        difference=current.tau_ext_nm[keep, j] - weights @ base.tau_ext_nm[:, j],
+        nuisance=state_c - weights @ state_b,
+        run=current.run[keep],
+    )
 
 
 def _hats(x: np.ndarray, count: int) -> np.ndarray:
@@ -874,21 +966,21 @@ def _hats(x: np.ndarray, count: int) -> np.ndarray:
     return np.maximum(0.0, 1.0 - np.abs(xc[:, None] - knots[None, :]) / width)
 
 
-def _candidates(rows: Rows, j: int, d: np.ndarray, t_start: float) -> list[tuple[str, np.ndarray]]:
-    """``D * G_v`` of every candidate variable for joint ``j``."""
+def _candidates(rows: Rows, j: int) -> list[tuple[str, np.ndarray]]:
+    """``G_v`` of every candidate variable for joint ``j`` on the window's covered rows."""
     s = _sign(rows.qd_rad_s[:, j])
-    dt = np.where(d == 1.0, rows.t_s - t_start, 0.0)
-    level = np.column_stack((d, d * s))
-    out = [("level", level), ("t", np.column_stack((d, d * s, dt, dt * s)))]
+    one = np.ones(s.size)
+    dt = rows.t_s - rows.t_s[0]
+    out = [("level", np.column_stack((one, s))), ("t", np.column_stack((one, s, dt, dt * s)))]
     tau = rows.tau_motor_nm[:, j]
-    out.append((f"tau{j + 1}", np.column_stack((d, d * s, d * tau, d * np.abs(tau) * s))))
+    out.append((f"tau{j + 1}", np.column_stack((one, s, tau, np.abs(tau) * s))))
     n = rows.q_rad.shape[1]
     angles = [(f"q{k + 1}", rows.q_rad[:, k]) for k in range(n)]
     if n >= 3:
         angles.append(("q2-q3", rows.q_rad[:, 1] - rows.q_rad[:, 2]))
     for name, x in angles:
         h = _hats(x, _HATS)
-        out.append((name, np.hstack((d[:, None] * h, (d * s)[:, None] * h))))
+        out.append((name, np.hstack((h, s[:, None] * h))))
     return out
 
 

@@ -1029,7 +1029,7 @@ class ServiceDiagnostics:
          "state": "dependence",            # baseline | watching | dependence
          "stream_s": 78.0,                 # stream time of the newest sample tested [s]
          "baseline_complete": true,
-         "rms_torque_nm": [0.02, 0.15, 0.02],   # per joint, over the baseline
+         "rms_torque_nm": [0.02, 0.03, 0.02],   # per joint, over its free rows
          "checks": [{"joint": 1, "rows": 350, "variable": "t", "p_value": 0.3,
                      "effect_fraction": 0.01, "consecutive": 0}, ...],
          "finding": {"joint": 2, "variable": "tau2", "effect_fraction": 0.11,

@@ -27,9 +27,10 @@ from teleop_force.transport.session import (
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 SEEDS = (1, 2, 3)
-#: One effect per variable the watch tests: position, load, time. Offline (the simulated
-#: streams of tests/service/test_residual_watch.py, seeds 1-3) only position-friction met
-#: the target.
+#: One effect per variable the watch tests: position, load, time. Offline
+#: (benchmarks/watch_offline.py, the simulated streams of tests/service/test_residual_watch.py,
+#: seeds 1-3): position-friction met the target on 3 seeds, load- and drifting-friction on 2
+#: (the third reported at 36 and 35 s); no report in 10 clean minutes on any.
 EFFECTS = ("position-friction", "load-friction", "drifting-friction")
 EFFECT_AT_S = 60.0
 
@@ -86,6 +87,7 @@ def test_the_watch_fires_within_30_s_of_a_10_percent_effect(effect: str, seed: i
     assert "--model" in found[0].command
 
 
+@pytest.mark.timeout(1200)  # the project's default (600 s) is shorter than the session
 @pytest.mark.parametrize("seed", SEEDS)
 def test_the_watch_stays_quiet_for_10_minutes_without_an_effect(seed: int) -> None:
     reports = _run(seed, 600.0, None)
