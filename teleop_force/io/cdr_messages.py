@@ -232,6 +232,8 @@ def _field(block: np.ndarray, offset: int, dtype: str, shape: tuple[int, ...] = 
     """
     item = np.dtype(dtype)
     rows, width = block.shape
+    if rows == 0:  # no buffer to view (numpy refuses an offset into an empty one)
+        return np.empty((0, *shape), dtype=item)
     return np.ndarray(
         (rows, *shape),
         dtype=item,

@@ -130,6 +130,11 @@ class BackgroundRecorder:
             if not self._finished:
                 self._report([(i, exc) for i in range(count)], keys)
             return
+        except Exception as exc:  # a bug must not stop the recording thread: batch reported
+            self._in_flight = 0
+            error = DataError(f"batch not recorded: {type(exc).__name__}: {exc}")
+            self._report([(i, error) for i in range(count)], keys)
+            return
         self.written += count - len(rejected)
         self._in_flight = 0
         self._report(rejected, keys)

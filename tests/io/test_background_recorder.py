@@ -124,6 +124,30 @@ def test_write_errors_are_reported_per_message(tmp_path):
     recorder.close()
 
 
+def test_an_unexpected_error_in_a_batch_is_reported_and_the_thread_lives_on(tmp_path):
+    seen = []
+    writer = SessionWriter(tmp_path / "b.mcap")
+    recorder = BackgroundRecorder(writer, lambda key, exc: seen.append((key, exc)))
+    write_payloads = writer.write_payloads
+    calls = []
+
+    def failing_once(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise ValueError("a bug in a converter")
+        return write_payloads(*args)
+
+    writer.write_payloads = failing_once  # type: ignore[method-assign]
+    recorder.submit(JS, joint_state(0).encode(), T0)
+    wait_until(lambda: len(seen) == 1)
+    assert seen[0][0] == JS and isinstance(seen[0][1], DataError)
+    assert "ValueError: a bug in a converter" in str(seen[0][1])
+    recorder.submit(JS, joint_state(1).encode(), T0 + 1000)
+    wait_until(lambda: recorder.written == 1)
+    recorder.close()
+    assert [message.seq for _, _, message in SessionReader(tmp_path / "b.mcap").messages()] == [1]
+
+
 def test_options_are_checked(tmp_path):
     writer = SessionWriter(tmp_path / "o.mcap")
     with pytest.raises(ConfigurationError):

@@ -177,6 +177,21 @@ def test_a_block_of_an_impossible_size_is_all_rejected():
     assert not result.accepted.any() and result.cdr.shape[0] == 0
 
 
+@pytest.mark.parametrize("n", [1, 3])
+def test_a_block_of_a_valid_size_with_no_valid_row_is_all_rejected(n):
+    # every row the right size but malformed (bad magic): nothing left to convert (this once
+    # raised ValueError, which killed the recorder's thread, found by the service fuzz test)
+    for message in examples(n):
+        cls = type(message)
+        if not cdr.has_fixed_layout(cls):
+            continue
+        bad = b"XX" + message.encode()[2:]
+        block = np.frombuffer(bad * 4, dtype=np.uint8).reshape(4, -1)
+        result = cdr.wire_block_to_cdr(cls, block)
+        assert not result.accepted.any()
+        assert result.cdr.shape[0] == 0 and result.seq.shape == (0,) and result.t_ns.shape == (0,)
+
+
 def test_joint_state_columns_match_single_decoding():
     messages = [
         m.JointState(i, T + i, (0.1 * i, 0.2, -0.3), (1.0, 2.0, 3.0), (0.0, -0.5, 1e-3 * i))
