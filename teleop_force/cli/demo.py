@@ -105,9 +105,9 @@ from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_liveliness_subscriber,
+    declare_queue_subscriber,
     query_json,
     undeclare_all,
-    zenoh_error_text,
 )
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -406,14 +406,7 @@ class _Monitor:
             (keys.measured_cf(slave), self._on_true_force),
             (keys.status(slave), self._on_status),
         ):
-            try:
-                subscriber = session.declare_subscriber(
-                    key, zenoh.handlers.RingChannel(_CHANNEL_CAPACITY)
-                )
-            except zenoh.ZError as exc:
-                raise TransportError(
-                    f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}"
-                ) from None
+            subscriber = declare_queue_subscriber(session, key, _CHANNEL_CAPACITY, drop_oldest=True)
             self._subscribers.append((subscriber, handle))
         self._thread.start()
         return [subscriber for subscriber, _ in self._subscribers]

@@ -44,6 +44,16 @@ MODEL_VERSION = 1
 MODEL_FILE_HOOK = built_by({FrictionModel: friction_from_dict, FoundEffect: effect_from_dict})
 
 
+def friction_torque(friction: FrictionModel, qd: np.ndarray, blend: bool = True) -> np.ndarray:
+    """``friction``'s torque at ``qd`` (N x n) as a model evaluates it.
+
+    Coverage-blended when the friction blends (a wavelet network with a fallback), unless
+    ``blend=False``.
+    """
+    blended = getattr(friction, "blended_torque", None) if blend else None
+    return np.asarray(blended(qd) if blended is not None else friction.torque(qd))
+
+
 @dataclass(frozen=True, eq=False)
 class DynamicModel:
     """Everything needed to compute the model torque of a robot from its motion.
@@ -89,8 +99,7 @@ class DynamicModel:
 
     def friction_torque(self, qd: np.ndarray, blend: bool = True) -> np.ndarray:
         """Friction torque at velocities ``qd`` (N x n); coverage-aware unless ``blend=False``."""
-        blended = getattr(self.friction, "blended_torque", None) if blend else None
-        return blended(qd) if blended is not None else self.friction.torque(qd)
+        return friction_torque(self.friction, qd, blend)
 
     def effects_torque(
         self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray

@@ -145,13 +145,7 @@ def control_design(
     if bodiless:
         parts.append(inertia_stand_in_columns(samples))
     extra = np.concatenate(parts, axis=1)
-    return JointDesign(
-        np.concatenate((design.base, extra), axis=1),
-        design.y,
-        samples.folds,
-        options.folds,
-        options.ridge,
-    )
+    return design.with_columns(extra)
 
 
 def control_gain(control: JointDesign | None, cols: np.ndarray) -> float:

@@ -147,14 +147,7 @@ def _control_design(
         + [friction_stand_in_columns(samples, joint, description)],
         axis=1,
     )
-    return JointDesign(
-        np.concatenate((design.base, extra), axis=1),
-        design.y,
-        samples.folds,
-        options.folds,
-        options.ridge,
-        reference_energy=design.reference_energy,
-    )
+    return design.with_columns(extra)
 
 
 def _whole_check(

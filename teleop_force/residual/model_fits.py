@@ -19,7 +19,7 @@ import numpy as np
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.kinds import FrictionKind
-from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.dynamic_model import DynamicModel, friction_torque
 from teleop_force.identification.effects import FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.least_squares import Identification, least_squares
@@ -259,7 +259,7 @@ def _final_fit(
         if network is None:
             a[:, :, r : r + p_f] = _friction_regressor(friction, s)[v]
         else:
-            known = _blended_torque(network, s.qd_rad_s)
+            known = friction_torque(network, s.qd_rad_s)
             target = target - lowpass_batch(known, s.t_s, config.cutoff_hz)
         col = r + p_f
         if baseline.offsets:
@@ -286,9 +286,3 @@ def _final_fit(
     ridges = np.full(total, BASE_RIDGE)
     ridges[total - effect_count :] = ridge
     return least_squares(np.concatenate(blocks), np.concatenate(torques), names, ridge=ridges)
-
-
-def _blended_torque(friction: FrictionModel, qd_rad_s: np.ndarray) -> np.ndarray:
-    """Return the friction torque as the model evaluates it (coverage-blended if it blends)."""
-    blended = getattr(friction, "blended_torque", None)
-    return np.asarray(blended(qd_rad_s) if blended is not None else friction.torque(qd_rad_s))

@@ -63,6 +63,17 @@ class JointDesign:
         """Make ``columns`` part of the base."""
         self._set_base(np.concatenate((self.base, columns), axis=1))
 
+    def with_columns(self, columns: np.ndarray) -> JointDesign:
+        """Return a new design: this one's base and ``columns``, the same ``y`` and reference."""
+        return JointDesign(
+            np.concatenate((self.base, columns), axis=1),
+            self.y,
+            self.folds,
+            self.n_folds,
+            self.ridge,
+            reference_energy=self.reference_energy,
+        )
+
     def _score(self, grams: list[np.ndarray], crosses: list[np.ndarray]) -> np.ndarray:
         g_all = sum(grams)
         c_all = sum(crosses)

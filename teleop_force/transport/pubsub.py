@@ -67,19 +67,22 @@ def declare_subscriber(
 
 
 def declare_queue_subscriber(
-    session: zenoh.Session, key: str, capacity: int
+    session: zenoh.Session, key: str, capacity: int, *, drop_oldest: bool = False
 ) -> zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]:
-    """Declare a subscriber whose samples wait in a FIFO, taken with ``try_recv()`` later.
+    """Declare a subscriber whose samples wait in a queue, taken with ``try_recv()`` later.
 
-    The FIFO is zenoh-python's ``FifoChannel(capacity)``; a thread of the caller's drains it.
-    No Python code runs per sample on Zenoh's receive thread (no interpreter lock taken
-    there): for receivers that want every message but not at once (the session recorder).
-    A full FIFO blocks Zenoh's receive thread, so drain it well before ``capacity``.
+    The queue is zenoh-python's ``FifoChannel(capacity)``, or with ``drop_oldest`` its
+    ``RingChannel(capacity)``; a thread of the caller's drains it. No Python code runs per
+    sample on Zenoh's receive thread (no interpreter lock taken there): for receivers that
+    want the messages but not at once (the session recorder, the demo's supervisor). A full
+    FIFO blocks Zenoh's receive thread, so drain it well before ``capacity``; a full ring
+    drops its oldest samples.
     """
     if capacity < 1:
-        raise ConfigurationError(f"{key}: FIFO capacity must be >= 1, got {capacity}")
+        raise ConfigurationError(f"{key}: queue capacity must be >= 1, got {capacity}")
+    channel = zenoh.handlers.RingChannel if drop_oldest else zenoh.handlers.FifoChannel
     try:
-        return session.declare_subscriber(key, zenoh.handlers.FifoChannel(int(capacity)))
+        return session.declare_subscriber(key, channel(int(capacity)))
     except zenoh.ZError as exc:
         raise TransportError(f"{key}: cannot declare subscriber: {zenoh_error_text(exc)}") from None
 

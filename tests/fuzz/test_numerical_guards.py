@@ -31,7 +31,7 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.robots.description import Robot
 from teleop_force.robots.omni import omni_description
-from teleop_force.service.adaptation import OnlineAdaptation
+from teleop_force.service.adaptation import AdaptationGate, AdaptationWorker
 from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -237,8 +237,9 @@ def test_online_adaptation_under_drift_stays_inside_the_ball(wn_model):
         wn_model.base_std, network, wn_model.offsets_nm,
     )  # fmt: skip
     estimator = ForceEstimator(model)
-    adaptation = OnlineAdaptation(estimator)
-    bound = np.asarray(adaptation.adapter.config.bound_b)
+    # what the service runs: the worker, every sample declared free (no force) so all adapt
+    worker = AdaptationWorker(estimator, AdaptationGate(guard_s=0.0))
+    bound = np.asarray(worker.adapter.config.bound_b)
     description = omni_description()
     mid = 0.5 * (description.q_min_rad + description.q_max_rad)
     for k in range(3000):
@@ -246,8 +247,14 @@ def test_online_adaptation_under_drift_stays_inside_the_ball(wn_model):
         q = mid + 0.3 * np.sin([3 * t, 2 * t, 4 * t])
         drift = 1.0 + 20.0 * t  # the unmodelled torque grows without bound
         tau = drift * np.sign(np.cos([3 * t, 2 * t, 4 * t])) * np.array([0.05, 0.1, 0.05])
-        adaptation.update(t, q, tau)
+        worker.submit(t, tuple(q), tuple(tau), [0.0, 0.0, 0.0])
         estimator.update(t, q, tau)
+        if k % 50 == 49:
+            worker.drain()
+            worker.apply()
+    worker.drain(final=True)
+    worker.apply()
+    assert worker.samples == 3000
     for j in range(3):
         c = network.joint_parameters(j)
         assert np.all(np.isfinite(c))

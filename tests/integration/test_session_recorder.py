@@ -83,5 +83,5 @@ def test_stamp_from_another_clock_clamped_into_the_drain_interval(
 
 
 def test_queue_subscriber_refuses_an_empty_fifo(zenoh_pair: Any) -> None:
-    with pytest.raises(ConfigurationError, match="FIFO capacity"):
+    with pytest.raises(ConfigurationError, match="queue capacity"):
         declare_queue_subscriber(zenoh_pair.listener, keys.measured_js("slave"), 0)
