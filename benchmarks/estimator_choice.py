@@ -1,6 +1,7 @@
 """How the default estimator, its bandwidth and the standstill dead band were chosen.
 
     uv run python benchmarks/estimator_choice.py [--family one] [--seeds 1 2 3] [--json]
+        [--identify-protocol teleoperation|slow-stretch] [--friction KIND]
 
 For each seed of the *tuning* plant family (family one, seeds 1-3: issue #19 item 5), a model
 is identified on 120 s of free motion and every candidate estimator runs over the same 60 s of
@@ -9,6 +10,9 @@ teleoperation touching a soft floor (:mod:`teleop_force.reports.accuracy`, which
 contact-force error, with the false force in free motion and the error at rest in contact.
 The defaults of :class:`~teleop_force.identification.filtered_regressor.FilterConfig` are the
 best of this table; plant family two (seeds 4-6) is only ever *reported* with them.
+``--identify-protocol`` and ``--friction`` change what the model is identified on and with
+(:class:`~teleop_force.reports.accuracy.AccuracyOptions`), for choices of the excitation and
+the friction made on the same tuning set.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from collections import defaultdict
 from typing import Any
 
 from teleop_force.reports.accuracy import (
+    IDENTIFY_PROTOCOLS,
     TEST_SEED_OFFSET,
     BatchEstimate,
     CascadeReference,
@@ -55,11 +60,17 @@ def main() -> None:
     parser.add_argument("--family", default="one", choices=("one", "two"))
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument("--json", action="store_true", help="print every figure as JSON")
+    parser.add_argument(
+        "--identify-protocol", choices=IDENTIFY_PROTOCOLS, default=IDENTIFY_PROTOCOLS[0]
+    )
+    parser.add_argument("--friction", default=None, help="friction kind (default: the Omni's)")
     args = parser.parse_args()
     family = PlantFamily.parse(args.family)
     rows = []
     for seed in args.seeds:
-        model, _ = identify_free_motion(family, seed)
+        model, _ = identify_free_motion(
+            family, seed, protocol=args.identify_protocol, friction=args.friction
+        )
         test = floor_touch_protocol(
             60.0, seed + TEST_SEED_OFFSET, family=family, plant_config=plant_config(family, seed)
         )
@@ -81,7 +92,10 @@ def main() -> None:
     def mean(items: list[dict[str, Any]], key: str) -> float:
         return sum(float(r[key]) for r in items) / len(items)
 
-    print(f"family {family.value}, seeds {' '.join(map(str, args.seeds))}")
+    print(
+        f"family {family.value}, seeds {' '.join(map(str, args.seeds))},"
+        f" identified on {args.identify_protocol} ({args.friction or 'default friction'})"
+    )
     print("| error in contact [%] | false force, free [N] | error at rest [N] | candidate |")
     print("|---|---|---|---|")
     ranked = sorted(by_candidate.items(), key=lambda kv: mean(kv[1], "contact_error_pct"))

@@ -470,7 +470,9 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         write_accuracy_report,
     )
 
-    options = AccuracyOptions(args.identify_duration, args.test_duration)
+    options = AccuracyOptions(
+        args.identify_duration, args.test_duration, args.identify_protocol, args.friction
+    )
     overrides: dict[str, object] = {}
     if args.estimator is not None:
         overrides["estimator"] = args.estimator
@@ -791,6 +793,8 @@ def _add_experiments(subparsers: _Subparsers) -> None:
 
 
 def _add_accuracy(subparsers: _Subparsers) -> None:
+    from teleop_force.friction.kinds import FrictionKind
+
     p = subparsers.add_parser(
         "accuracy", help="held-out force accuracy per simulated plant family and seed"
     )
@@ -803,6 +807,19 @@ def _add_accuracy(subparsers: _Subparsers) -> None:
     )
     p.add_argument(
         "--test-duration", type=float, default=60.0, help="teleoperation touching a floor [s]"
+    )
+    p.add_argument(
+        "--identify-protocol",
+        choices=("teleoperation", "slow-stretch"),
+        default="teleoperation",
+        help="free motion to identify on: band-limited random motion (default), or the same"
+        " with slow stretches (40 %% of the time at 1/50-1/5 of the speed)",
+    )
+    p.add_argument(
+        "--friction",
+        choices=[kind.value for kind in FrictionKind],
+        default=None,
+        help="friction to identify (default: the Omni's, as `teleop-force identify` fits it)",
     )
     add_estimator_arguments(p)
     _add_output(p, "folder for accuracy.md and accuracy.json", required=True)

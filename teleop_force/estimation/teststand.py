@@ -29,6 +29,14 @@ command line's default friction (``wn``) a wavelet network is trained on those p
 fallback the coupled CV of the fit: the 0.1 s flights leave it no trained ground, so the
 friction is that CV, and the identification says so in one ``warning`` line instead of
 refusing. Held-out figures: :mod:`teleop_force.reports.teststand_heldout`.
+
+Sticking (``TeststandOptions.sticking``, CV friction only): the Coulomb term's ``sgn(qd)`` is
+replaced by a Dahl state ``z`` of the pre-filtered angle, ``dz/dq = (1 - z sgn(dq)) / phi``,
+which reaches +-1 within the transition angle ``phi`` of motion and keeps its value at rest:
+a leg standing under load keeps the friction of its last motion instead of none (the dead band)
+or a sign picked by velocity noise. ``phi`` is identified with the rest on the samples without
+contact (the fit's own torque residual, minimised over :data:`STICKING_RANGE_RAD`); the force
+sensor picks those samples only.
 """
 
 from __future__ import annotations
@@ -65,6 +73,9 @@ _DIRECTIONAL_STEP = 1e-5
 STANDSTILL_BAND_RAD_S = 0.05
 #: Friction models the test stand is identified with.
 FRICTION_KINDS = ("cv", "coupled-cv", "wn")
+#: Range [rad] searched for the sticking (Dahl) transition angle: from a few encoder counts
+#: (3e-5 rad at the joint) to a tenth of a radian, where it is no longer sticking.
+STICKING_RANGE_RAD = (1e-4, 1e-1)
 
 
 @dataclass(frozen=True)
@@ -83,6 +94,8 @@ class TeststandOptions:
         prior_weight: Weight of the nominal parameters against the free-phase data, as a
             fraction of the data's column norms (0: plain least squares).
         slider: Whether the model carries the slider-acceleration term.
+        sticking: Whether the Coulomb term is the Dahl sticking state (module doc) rather
+            than ``sgn(qd)`` with the dead band; ``cv`` friction only.
 
     """
 
@@ -100,6 +113,7 @@ class TeststandOptions:
     friction: str = "cv"
     prior_weight: float = 0.3
     slider: bool = False
+    sticking: bool = False
 
     def __post_init__(self) -> None:
         if not self.free_force_n > 0:
@@ -112,6 +126,8 @@ class TeststandOptions:
             )
         if self.prior_weight < 0:
             raise ConfigurationError("prior_weight must be >= 0")
+        if self.sticking and self.friction != "cv":
+            raise ConfigurationError("the sticking friction goes with cv friction")
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,6 +140,8 @@ class TeststandModel:
         free_samples: Number of samples identification used.
         details: Figures of the friction fit (the wavelet network's sizes, its fraction on
             trained ground) and ``warning``, one line, when the friction is mostly the CV.
+        sticking_rad: The identified Dahl transition angle [rad] of the Coulomb term; 0 when
+            the Coulomb term is ``sgn(qd)`` with the dead band.
 
     """
 
@@ -131,6 +149,7 @@ class TeststandModel:
     slider: bool
     free_samples: int
     details: dict[str, Any] = field(default_factory=dict)
+    sticking_rad: float = 0.0
 
 
 def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -> np.ndarray:
@@ -150,6 +169,29 @@ def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -
     before = np.abs(t - contact_times[np.clip(nearest - 1, 0, contact_times.size - 1)])
     after = np.abs(contact_times[np.clip(nearest, 0, contact_times.size - 1)] - t)
     return ~contact & (np.minimum(before, after) > guard_s)
+
+
+def dahl_state(q_rad: np.ndarray, transition_rad: float) -> np.ndarray:
+    """Return the Dahl state of every joint, ``(N, n)`` in [-1, 1], from angles ``(N, n)``.
+
+    ``z_k = z_{k-1} + (dq / phi) (1 - z_{k-1} sgn(dq))``, clipped to [-1, 1], from
+    ``z_0 = 0``: it follows the path, not the time, so it holds its value at rest.
+    """
+    if not transition_rad > 0:
+        raise ConfigurationError(f"transition angle must be > 0, got {transition_rad}")
+    q = np.asarray(q_rad, dtype=float)
+    out = np.zeros_like(q)
+    for j in range(q.shape[1]):
+        z = 0.0
+        column = q[:, j].tolist()
+        state = out[:, j]
+        for k in range(1, len(column)):
+            dq = column[k] - column[k - 1]
+            if dq != 0.0:
+                z += dq / transition_rad * (1.0 - z * (1.0 if dq > 0 else -1.0))
+                z = min(1.0, max(-1.0, z))
+            state[k] = z
+    return out
 
 
 def slider_regressor(
@@ -249,11 +291,16 @@ def identify_teststand(
             f"only {int(free.sum())} samples without contact to identify from",
             path=recording.source,
         )
-    regressor = np.concatenate((rigid, fric), axis=2)[free]
     torque = signals.tau_lowpassed_nm[free]
     nominal = np.concatenate(
         (base.project(full_parameters(description, np.zeros(0))), np.zeros(fric.shape[2]))
     )
+    sticking_rad = 0.0
+    if options.sticking:
+        sticking_rad, fric = _identify_sticking(
+            signals, rigid, fric, friction, free, nominal, options.prior_weight
+        )
+    regressor = np.concatenate((rigid, fric), axis=2)[free]
     theta = _regularised_fit(regressor, torque, nominal, options.prior_weight)
     r = base.count
     friction.parameters = theta[r:].copy()
@@ -276,9 +323,49 @@ def identify_teststand(
             "identified_on": f"{int(free.sum())} samples without contact",
             "slider_term": options.slider,
             "prior_weight": options.prior_weight,
+            "sticking_rad": sticking_rad,
         },
     )
-    return TeststandModel(model, options.slider, int(free.sum()), details)
+    return TeststandModel(model, options.slider, int(free.sum()), details, sticking_rad)
+
+
+def _sticking_basis(
+    signals: FilteredSignals, fric: np.ndarray, friction: FrictionModel, transition_rad: float
+) -> np.ndarray:
+    """``fric`` with every joint's filtered ``sgn(qd)`` column replaced by its Dahl state."""
+    state = lowpass_batch(
+        dahl_state(signals.q_rad, transition_rad), signals.t_s, signals.config.cutoff_hz
+    )
+    out = fric.copy()
+    for j in range(state.shape[1]):
+        out[:, j, friction.joint_slice(j).start] = state[:, j]
+    return out
+
+
+def _identify_sticking(
+    signals: FilteredSignals,
+    rigid: np.ndarray,
+    fric: np.ndarray,
+    friction: FrictionModel,
+    free: np.ndarray,
+    nominal: np.ndarray,
+    prior_weight: float,
+) -> tuple[float, np.ndarray]:
+    """Return the transition angle whose fit leaves the least residual without contact."""
+    from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is slow to import
+
+    torque = signals.tau_lowpassed_nm[free]
+
+    def residual(log_rad: float) -> float:
+        basis = _sticking_basis(signals, fric, friction, 10.0**log_rad)
+        regressor = np.concatenate((rigid, basis), axis=2)[free]
+        theta = _regularised_fit(regressor, torque, nominal, prior_weight)
+        return float(np.sum((torque - np.einsum("kjp,p->kj", regressor, theta)) ** 2))
+
+    low, high = np.log10(STICKING_RANGE_RAD)
+    found = minimize_scalar(residual, bounds=(low, high), method="bounded", options={"xatol": 0.01})
+    transition_rad = float(10.0**found.x)
+    return transition_rad, _sticking_basis(signals, fric, friction, transition_rad)
 
 
 def _train_network(
@@ -358,7 +445,10 @@ def estimate_forces(
 ) -> np.ndarray:
     """Force of the foot on the ground at every sample, base frame (N x 3, NaN if singular)."""
     model = identified.model
-    if getattr(model.filter_config, "observer", False) and not identified.slider:
+    observer = getattr(model.filter_config, "observer", False)
+    if observer and identified.sticking_rad > 0.0:
+        raise ConfigurationError("the sticking friction goes with the filter estimator")
+    if observer and not identified.slider:
         from teleop_force.estimation.batch import BatchEstimator
 
         estimates = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
@@ -368,8 +458,13 @@ def estimate_forces(
     signals = prepared.signals
     tau_model = np.einsum("kjp,p->kj", rigid, model.base_values)
     if with_friction:
+        friction_nm = (
+            _sticking_friction_torque(model, signals, identified.sticking_rad)
+            if identified.sticking_rad > 0.0
+            else _friction_torque(model, signals.qd_rad_s)
+        )
         tau_model = tau_model + lowpass_batch(
-            _friction_torque(model, signals.qd_rad_s), signals.t_s, model.filter_config.cutoff_hz
+            friction_nm, signals.t_s, model.filter_config.cutoff_hz
         )
     tau_external = signals.tau_lowpassed_nm - tau_model
     robot = Robot(description)
@@ -392,6 +487,21 @@ def _friction_torque(model: DynamicModel, qd_rad_s: np.ndarray) -> np.ndarray:
         from teleop_force.friction.terms import standstill_factors
 
         torque = torque * standstill_factors(np.ascontiguousarray(qd_rad_s), band)[:, None]
+    return torque
+
+
+def _sticking_friction_torque(
+    model: DynamicModel, signals: FilteredSignals, transition_rad: float
+) -> np.ndarray:
+    """Return the CV friction torque, the Dahl state in place of ``sgn(qd)`` (no dead band)."""
+    friction = model.friction
+    if not isinstance(friction, CoulombViscous):
+        raise ConfigurationError("the sticking friction goes with cv friction")
+    state = dahl_state(signals.q_rad, transition_rad)
+    torque = np.empty_like(state)
+    for j in range(state.shape[1]):
+        coulomb, viscous = friction.parameters[friction.joint_slice(j)]
+        torque[:, j] = coulomb * state[:, j] + viscous * signals.qd_rad_s[:, j]
     return torque
 
 

@@ -4,9 +4,11 @@
 
 For one family and seed (:func:`session_accuracy`):
 
-1. **identify** a model on 120 s of *free* motion (the teleoperation protocol, band-limited
-   random motion, no contact) with the Omni's default friction and offsets, as
-   ``teleop-force identify`` fits them (:func:`~teleop_force.robots.registry.robot_defaults`);
+1. **identify** a model on 120 s of *free* motion (default: the teleoperation protocol,
+   band-limited random motion, no contact; ``identify_protocol="slow-stretch"``: the same
+   motion with slow stretches, :func:`~teleop_force.simulation.session.slow_stretch_protocol`)
+   with the Omni's default friction and offsets, as ``teleop-force identify`` fits them
+   (:func:`~teleop_force.robots.registry.robot_defaults`; ``friction=`` names another kind);
 2. **simulate** 60 s of teleoperation touching a soft floor on the *same arm*
    (:func:`~teleop_force.simulation.floor_touch.floor_touch_protocol`, another session seed:
    other motion, other noise): never used to fit;
@@ -58,7 +60,11 @@ from teleop_force.simulation.families import PlantFamily
 from teleop_force.simulation.floor_touch import floor_touch_protocol
 from teleop_force.simulation.plant import PlantConfig
 from teleop_force.simulation.plant_two import PlantTwoConfig
-from teleop_force.simulation.session import SimulatedSession, teleoperation_protocol
+from teleop_force.simulation.session import (
+    SimulatedSession,
+    slow_stretch_protocol,
+    teleoperation_protocol,
+)
 
 #: ``estimate(model, session) -> (N, 3)`` force of the tip on the environment [N].
 Estimate = Callable[[DynamicModel, SimulatedSession], np.ndarray]
@@ -69,6 +75,8 @@ ReferenceFilter = Callable[[np.ndarray, float], np.ndarray]
 REST_SPEED_RAD_S = 0.01
 #: Offset between the identification and the test session's seeds.
 TEST_SEED_OFFSET = 100
+#: The free-motion protocols a model can be identified on (the first is the default).
+IDENTIFY_PROTOCOLS = ("teleoperation", "slow-stretch")
 
 
 @dataclass(frozen=True)
@@ -132,16 +140,34 @@ class CascadeReference:
 
 @dataclass(frozen=True)
 class AccuracyOptions:
-    """Durations of the protocol (defaults: issue #19's 120 s free, 60 s touching)."""
+    """The protocol's choices (defaults: issue #19's 120 s free, 60 s touching).
+
+    Attributes:
+        identify_duration_s: Free motion to identify on [s].
+        test_duration_s: Teleoperation touching the floor [s].
+        identify_protocol: One of :data:`IDENTIFY_PROTOCOLS` (the free motion's kind).
+        friction: Friction kind to identify (``None``: the Omni's default, as
+            ``teleop-force identify`` fits it).
+
+    """
 
     identify_duration_s: float = 120.0
     test_duration_s: float = 60.0
+    identify_protocol: str = IDENTIFY_PROTOCOLS[0]
+    friction: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("identify_duration_s", "test_duration_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 1.0):
                 raise ConfigurationError(f"{name} must be > 1 s, got {value}")
+        if self.identify_protocol not in IDENTIFY_PROTOCOLS:
+            raise ConfigurationError(
+                f"identify_protocol must be one of {IDENTIFY_PROTOCOLS},"
+                f" got {self.identify_protocol!r}"
+            )
+        if self.friction is not None:
+            FrictionKind.parse(self.friction)
 
 
 @dataclass(frozen=True)
@@ -152,6 +178,7 @@ class SessionAccuracy:
     seed: int
     estimator: str
     friction: str
+    identify_protocol: str
     contact_fraction: float
     rms_contact_force_n: float
     contact_error_n: float
@@ -220,18 +247,28 @@ def _recording(session: SimulatedSession) -> Recording:
 
 
 def identify_free_motion(
-    family: PlantFamily | str, seed: int, duration_s: float = 120.0
+    family: PlantFamily | str,
+    seed: int,
+    duration_s: float = 120.0,
+    *,
+    protocol: str = IDENTIFY_PROTOCOLS[0],
+    friction: str | None = None,
 ) -> tuple[DynamicModel, SimulatedSession]:
-    """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm."""
+    """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm.
+
+    ``protocol``: one of :data:`IDENTIFY_PROTOCOLS`; ``friction``: a friction kind instead of
+    the Omni's default.
+    """
     family = PlantFamily.parse(family)
-    session = teleoperation_protocol(
-        duration_s, seed, family=family, plant_config=plant_config(family, seed)
-    )
+    if protocol not in IDENTIFY_PROTOCOLS:
+        raise ConfigurationError(f"protocol must be one of {IDENTIFY_PROTOCOLS}, got {protocol!r}")
+    run = teleoperation_protocol if protocol == "teleoperation" else slow_stretch_protocol
+    session = run(duration_s, seed, family=family, plant_config=plant_config(family, seed))
     defaults = robot_defaults(RobotKind.OMNI)  # what `teleop-force identify` fits by default
     model, _ = identify_model(
         [_recording(session)],
         omni_description(),
-        FrictionKind.parse(defaults.friction),
+        FrictionKind.parse(friction if friction is not None else defaults.friction),
         offsets=defaults.offsets,
     )
     return model, session
@@ -264,7 +301,13 @@ def session_accuracy(
     estimator = estimate if estimate is not None else BatchEstimate()
     started = perf_counter()
     if model is None:
-        model, _ = identify_free_motion(family, seed, options.identify_duration_s)
+        model, _ = identify_free_motion(
+            family,
+            seed,
+            options.identify_duration_s,
+            protocol=options.identify_protocol,
+            friction=options.friction,
+        )
     identify_wall = perf_counter() - started
     log(f"family {family} seed {seed}: identified ({model.friction.kind}) in {identify_wall:.1f} s")
     started = perf_counter()
@@ -288,6 +331,7 @@ def session_accuracy(
         seed=int(seed),
         estimator=describe() if callable(describe) else getattr(estimator, "__name__", "custom"),
         friction=str(model.friction.kind),
+        identify_protocol=options.identify_protocol,
         identify_wall_s=round(identify_wall, 1),
         simulate_wall_s=round(simulate_wall, 1),
         **figures,  # type: ignore[arg-type]
@@ -365,11 +409,13 @@ def write_accuracy_report(
     options = options or AccuracyOptions()
     folder.mkdir(parents=True, exist_ok=True)
     estimators = sorted({r.estimator for r in results})
+    frictions = sorted({r.friction for r in results})
+    protocols = sorted({r.identify_protocol for r in results})
     lines = [
         "# Force accuracy on held-out sessions",
         "",
         f"Per family and seed: a model identified on {options.identify_duration_s:g} s of free"
-        " motion (default friction), tested on"
+        f" motion ({', '.join(protocols)} protocol; friction {', '.join(frictions)}), tested on"
         f" {options.test_duration_s:g} s of teleoperation touching a soft floor (another"
         " session of the same arm, not used to fit). Estimator: " + ", ".join(estimators) + ".",
         "",
@@ -381,6 +427,8 @@ def write_accuracy_report(
     payload = {
         "identify_duration_s": options.identify_duration_s,
         "test_duration_s": options.test_duration_s,
+        "identify_protocol": options.identify_protocol,
+        "friction": options.friction,
         "sessions": [r.to_json() for r in results],
     }
     path = folder / "accuracy.json"

@@ -4,8 +4,12 @@
 ``train_fraction`` of the samples (the ATI force only picks the phases without contact there;
 it never enters the fit) and the force is estimated over the whole log with causal filters
 (the estimator runs on as it would live), then scored against the ATI sensor on the held-out
-rest only. The baseline is the URDF rigid body with ``J^-T`` and no friction, through the same
-filters, on the same samples.
+rest only. The model's Coulomb term is the sticking (Dahl) state, its transition angle
+identified with the rest on the phases without contact
+(:mod:`teleop_force.estimation.teststand`); the same identification with ``sgn(qd)`` and the
+standstill dead band instead (the model before the sticking state) is scored beside it. The
+baseline is the URDF rigid body with ``J^-T`` and no friction, through the same filters, on
+the same samples.
 
 The f_z error is split (issue 19): ``lag`` is the RMS of the true force filtered like the
 estimate minus the true force (what the filters' delay alone costs), ``bias`` the mean of the
@@ -18,7 +22,7 @@ reads no contact.
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +46,8 @@ from teleop_force.robots.teststand import teststand_description
 GOAL_RATIO = 2.0 / 3.0
 #: Every joint slower than this [rad/s]: standstill (issue 19).
 STANDSTILL_RAD_S = 0.01
+#: The text's name of each estimate of ``HeldOutReport.first_part_contact_n``.
+_ROW_NAMES = {"urdf": "URDF", "ours": "identified", "dead_band": "with dead band"}
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,11 @@ class HeldOutReport:
         ours: The identified model, held out.
         lab: The lab's own estimate, held out (None without its file); its filters are its
             own, so its split is against the raw sensor force (``lag`` 0).
+        dead_band: The same identification with ``sgn(qd)`` and the dead band in place of
+            the sticking state, held out (None when ``ours`` has no sticking state).
+        first_part_contact_n: RMS f_z error on the first part's samples in contact (after
+            the filters' warm-up), per estimate (``urdf``, ``ours``, ``dead_band``): samples
+            no fit used, but from the part the model was identified on, so not held out.
         in_sample_ours_n: RMS f_z error of a model identified on the whole log, scored on
             the whole log (in-sample; the old headline).
         in_sample_urdf_n: The URDF's RMS f_z error on the whole log.
@@ -106,6 +117,8 @@ class HeldOutReport:
     urdf: ForceErrors
     ours: ForceErrors
     lab: ForceErrors | None
+    dead_band: ForceErrors | None
+    first_part_contact_n: dict[str, float]
     in_sample_ours_n: float
     in_sample_urdf_n: float
     ratio: float
@@ -133,6 +146,8 @@ class HeldOutReport:
             "held out, f_z [N]       rms   lag   bias  spread  standstill  moving",
         ]
         rows = [("URDF + J^-T", self.urdf), ("identified", self.ours)]
+        if self.dead_band is not None:
+            rows.append(("  with dead band", self.dead_band))
         if self.lab is not None:
             rows.append(("lab estimator", self.lab))
         for name, e in rows:
@@ -149,8 +164,19 @@ class HeldOutReport:
                 else f"identified {free:.3f} N, URDF {self.urdf.free_false_force_n:.3f} N RMS"
             )
         )
+        sticking = float(self.options.get("sticking_rad", 0.0))
+        if sticking > 0.0:
+            out.append(
+                f"identified: sticking Coulomb term, transition angle {sticking:.2g} rad "
+                "(identified without contact)"
+            )
         verdict = "met" if self.goal_met else "NOT met"
         out.append(f"identified / URDF = {self.ratio:.2f} (goal <= {GOAL_RATIO:.2f}: {verdict})")
+        first = self.first_part_contact_n
+        out.append(
+            "first part, samples in contact (in no fit, not held out): "
+            + ", ".join(f"{_ROW_NAMES[name]} {value:.3f} N" for name, value in first.items())
+        )
         out.append(
             f"in-sample (identified and scored on the whole log): identified "
             f"{self.in_sample_ours_n:.3f} N, URDF {self.in_sample_urdf_n:.3f} N"
@@ -167,7 +193,7 @@ def held_out_study(
     """Identify on the first ``train_fraction`` of the log, score on the rest (module doc)."""
     if not 0.0 < train_fraction < 1.0:
         raise ConfigurationError(f"train_fraction must be in (0, 1), got {train_fraction}")
-    options = options or TeststandOptions()
+    options = options or TeststandOptions(sticking=True)
     log = read_teststand_folder(folder, torque_source)
     recording = log.recording
     truth = recording.f_tip_in_base_n
@@ -183,9 +209,19 @@ def held_out_study(
             f"{n} samples cannot be split at {train_fraction:.2f}", path=recording.source
         )
     description = teststand_description()
-    identified = identify_teststand(_head(recording, cut), description, options)
+    head = _head(recording, cut)
+    identified = identify_teststand(head, description, options)
     nominal = nominal_teststand_model(description, options)
     ours = estimate_forces(identified, recording, description)
+    dead_band = (
+        estimate_forces(
+            identify_teststand(head, description, replace(options, sticking=False)),
+            recording,
+            description,
+        )
+        if options.sticking
+        else None
+    )
     urdf = estimate_forces(nominal, recording, description, with_friction=False)
     whole = identify_teststand(recording, description, options)
     in_sample = estimate_forces(whole, recording, description)
@@ -217,6 +253,14 @@ def held_out_study(
         else _errors(log.lab_estimate_n[:, 2], truth[:, 2], truth[:, 2], sets)
     )
     urdf_errors, our_errors = errors(urdf), errors(ours)
+    first_contact = ~test & ~free & (recording.t_s >= recording.t_s[0] + config.warmup_s)
+    estimates = {"urdf": urdf, "ours": ours}
+    if dead_band is not None:
+        estimates["dead_band"] = dead_band
+    first_part_contact = {
+        name: _rms(forces[first_contact, 2] - truth[first_contact, 2])
+        for name, forces in estimates.items()
+    }
     return HeldOutReport(
         source=str(recording.source),
         torque_source=log.torque_source,
@@ -228,6 +272,8 @@ def held_out_study(
         urdf=urdf_errors,
         ours=our_errors,
         lab=lab,
+        dead_band=None if dead_band is None else errors(dead_band),
+        first_part_contact_n=first_part_contact,
         in_sample_ours_n=_rms(in_sample[:, 2] - truth[:, 2]),
         in_sample_urdf_n=_rms(urdf[:, 2] - truth[:, 2]),
         ratio=our_errors.rms_n / urdf_errors.rms_n,
@@ -237,6 +283,7 @@ def held_out_study(
             "standstill_band_rad_s": float(getattr(config, "standstill_band_rad_s", 0.0)),
             "prior_weight": options.prior_weight,
             "friction": options.friction,
+            "sticking_rad": identified.sticking_rad,
             "free_force_n": options.free_force_n,
             "guard_s": options.guard_s,
             "train_fraction": train_fraction,

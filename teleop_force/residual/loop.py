@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from teleop_force.friction.kinds import FrictionKind
 from teleop_force.identification.effects import BasisSpec, variable_values
@@ -260,7 +261,19 @@ def _scorers(
 def _search(
     samples: SelectedSamples, scorers: Scorers, options: ResidualOptions, offsets: bool
 ) -> Search:
-    """Add the best confirmed effect, step by step, until none is left or ``max_effects``."""
+    """Add the best confirmed effect, step by step, until none is left or ``max_effects``.
+
+    BLAS runs on one thread: the search solves thousands of small systems, on which
+    OpenBLAS's busy-waiting workers only cost: on a 2-core machine under load, the dVRK MTM's
+    loop had not finished after 35 min with BLAS threads; on one thread it took 80 s.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _search_steps(samples, scorers, options, offsets)
+
+
+def _search_steps(
+    samples: SelectedSamples, scorers: Scorers, options: ResidualOptions, offsets: bool
+) -> Search:
     designs = scorers.designs
     before = np.array([d.relative_rms(d.held_out_errors()) for d in designs])
     current = before.copy()

@@ -76,6 +76,13 @@ class ResidualOptions:
     #: (:func:`~teleop_force.residual.scoring.trajectory_period`) and refuse an effect that
     #: raises a joint's error on them.
     phase_folds: bool = True
+    #: Contiguous blocks of the period each phase fold holds out (1: a fold is one stretch of
+    #: a fifth of the period). An effect must then carry over a whole stretch of the
+    #: trajectory it was not fitted on; with several short blocks per fold a pose pattern of
+    #: the trajectory passes by interpolating between neighbouring phases (the dVRK MTM,
+    #: ``--robot none``: 4 blocks per fold let joint 3 take ``q5-q7``, 130 % on trajectory
+    #: two; 1 block: 87 %).
+    phase_blocks_per_fold: int = 1
     #: Where an effect found on motor j acts (:class:`EffectPlacement`).
     effect_placement: EffectPlacement = EffectPlacement.AUTO
     #: An effect must also lower its joint's RMS by this much on data it was not found on:
@@ -112,6 +119,8 @@ class ResidualOptions:
             raise ConfigurationError("parsimony must be in (0, 1]")
         if not 0 <= self.min_holdout_gain < 1:
             raise ConfigurationError("min_holdout_gain must be in [0, 1)")
+        if self.phase_blocks_per_fold < 1:
+            raise ConfigurationError("phase_blocks_per_fold must be >= 1")
         if self.decimate < 1:
             raise ConfigurationError("decimate must be >= 1")
         if self.confirm_candidates < 1:

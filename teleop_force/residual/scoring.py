@@ -267,8 +267,11 @@ def time_block_folds(size: int, options: ResidualOptions) -> np.ndarray:
 
 
 def phase_block_folds(t_s: np.ndarray, period_s: float, options: ResidualOptions) -> np.ndarray:
-    """Fold of each sample at times ``t_s``: blocks of the phase within ``period_s``."""
-    n_blocks = options.folds * options.blocks_per_fold
+    """Fold of each sample at times ``t_s``: blocks of the phase within ``period_s``.
+
+    ``options.phase_blocks_per_fold`` contiguous blocks per fold, dealt in turn.
+    """
+    n_blocks = options.folds * options.phase_blocks_per_fold
     phase = np.mod(t_s - t_s[0], period_s) / period_s
     phase_block = np.minimum((phase * n_blocks).astype(int), n_blocks - 1)
     return phase_block % options.folds

@@ -49,6 +49,7 @@ from teleop_force.simulation.trajectories import (
     friction_trajectory,
     palpation_trajectory,
     rigid_body_trajectory,
+    slow_stretch_trajectory,
     teleoperation_trajectory,
 )
 from teleop_force.simulation.true_friction import TrueFriction
@@ -429,6 +430,36 @@ def teleoperation_protocol(
         family=family,
         tip_mass_kg=tip_mass_kg,
         name="teleoperation",
+    )
+
+
+def slow_stretch_protocol(
+    duration_s: float = 120.0,
+    seed: int = 0,
+    *,
+    slow_fraction: float = 0.4,
+    effects: Sequence[PlantEffect] = (),
+    plant_config: PlantConfig | PlantTwoConfig | None = None,
+    pid_gains: PIDGains | None = None,
+    family: PlantFamily | str = PlantFamily.ONE,
+    tip_mass_kg: float = 0.0,
+) -> SimulatedSession:
+    """Free band-limited random motion with slow stretches (``slow_fraction`` of the time).
+
+    See :func:`~teleop_force.simulation.trajectories.slow_stretch_trajectory`: the
+    teleoperation protocol's motion, partly played 5-50 times slower, so an identification
+    also sees the low joint speeds that touching a surface lives at. No contact.
+    """
+    return simulate_session(
+        slow_stretch_trajectory(duration_s, seed, slow_fraction=slow_fraction),
+        duration_s,
+        seed,
+        effects=effects,
+        plant_config=plant_config,
+        pid_gains=pid_gains,
+        family=family,
+        tip_mass_kg=tip_mass_kg,
+        name="slow-stretch",
     )
 
 

@@ -10,6 +10,8 @@ arrays, an (N,) array gives (N, n) arrays) and starts at rest, so a plant starte
   ``"equal"``, ``"opposite"`` (equal with opposite sign about their mid-range) or
   ``"independent"`` (IV-B, experiments 1 and 2).
 - :func:`teleoperation_trajectory`: band-limited random motion (IV-B, experiment 3).
+- :func:`slow_stretch_trajectory`: the same with slow stretches (:class:`TimeWarped`), free
+  motion that also dwells at low joint speeds (identification excitation).
 - :func:`palpation_trajectory`: approach a tissue, press into it, slide, release.
 
 All of them stay inside the Omni's joint ranges with a margin (checked on construction).
@@ -176,6 +178,81 @@ class SaturatedMotion(Trajectory):
         q = self.centre_rad + self.half_width_rad * squashed
         qd = (1.0 - squashed**2) * s_rate
         return q, qd
+
+
+@dataclass(frozen=True, eq=False)
+class TimeWarped(Trajectory):
+    """``q(t) = q_base(tau(t))``: a trajectory played at a time-varying rate ``r = tau'``.
+
+    The rate is 1 except in the slow stretches ``[starts_s[i], ends_s[i]]``, where it blends
+    down to ``rates[i]`` over ``ramp_s`` (a smoothstep), stays there and blends back up, so
+    ``qd = qd_base(tau) r`` is continuous and the positions are those of the base
+    trajectory (same range), only visited slower. ``tau`` is the rate's exact integral.
+
+    Attributes:
+        base: The trajectory played.
+        starts_s: (S,) starts of the slow stretches (increasing, non-overlapping).
+        ends_s: (S,) their ends (each at least ``2 ramp_s`` after its start).
+        rates: (S,) the rate inside each stretch, in (0, 1].
+        ramp_s: Duration of the blends into and out of a stretch.
+
+    """
+
+    base: Trajectory
+    starts_s: np.ndarray
+    ends_s: np.ndarray
+    rates: np.ndarray
+    ramp_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        starts = np.array(self.starts_s, dtype=float).reshape(-1)
+        ends = np.array(self.ends_s, dtype=float).reshape(-1)
+        rates = np.array(self.rates, dtype=float).reshape(-1)
+        ramp = float(self.ramp_s)
+        if not (math.isfinite(ramp) and ramp > 0.0):
+            raise ConfigurationError(f"ramp_s must be > 0, got {self.ramp_s}")
+        if starts.shape != ends.shape or starts.shape != rates.shape:
+            raise ConfigurationError("slow stretches need one start, end and rate each")
+        if not (np.all(np.isfinite(starts)) and np.all(np.isfinite(ends))):
+            raise ConfigurationError("slow stretch times must be finite")
+        if np.any(ends - starts < 2.0 * ramp) or np.any(starts[1:] < ends[:-1]):
+            raise ConfigurationError("slow stretches must last 2 ramps and not overlap")
+        if np.any(~((rates > 0.0) & (rates <= 1.0))):
+            raise ConfigurationError("slow stretch rates must be in (0, 1]")
+        for name, value in (("starts_s", starts), ("ends_s", ends), ("rates", rates)):
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return self.base.n_joints
+
+    def warp(self, t_s: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Warped time ``tau`` and rate ``r`` at ``t_s`` ((N,) each, also for a float)."""
+        t, _ = _times(t_s)
+        tau = t.copy()
+        rate = np.ones_like(t)
+        ramp = float(self.ramp_s)
+        for start, end, slow in zip(self.starts_s, self.ends_s, self.rates, strict=True):
+            # depth d(t) in [0, 1] of the slowdown: r = 1 - (1 - slow) d, tau = t - (1 - slow) D
+            x_in = np.clip((t - start) / ramp, 0.0, 1.0)
+            x_out = np.clip((t - (end - ramp)) / ramp, 0.0, 1.0)
+            depth = x_in**2 * (3.0 - 2.0 * x_in) - x_out**2 * (3.0 - 2.0 * x_out)
+            held = np.maximum(t - (start + ramp), 0.0) - np.maximum(t - end, 0.0)
+            area = ramp * (x_in**3 - 0.5 * x_in**4) + held
+            area -= ramp * (x_out**3 - 0.5 * x_out**4)
+            rate -= (1.0 - slow) * depth
+            tau -= (1.0 - slow) * area
+        return tau, rate
+
+    def sample(self, t_s: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and velocities (see :class:`Trajectory`)."""
+        _, scalar = _times(t_s)
+        tau, rate = self.warp(t_s)
+        q, qd = self.base.sample(tau)
+        qd = qd * rate[:, None]
+        return (q[0], qd[0]) if scalar else (q, qd)
 
 
 def _minimum_jerk(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -377,6 +454,57 @@ def teleoperation_trajectory(
     phases = rng.uniform(0.0, 2.0 * math.pi, size=shape)
     signal = MultiSine(np.zeros(3), amplitudes, frequencies, phases)
     return SaturatedMotion(signal, centre, fill * half)
+
+
+def slow_stretch_trajectory(
+    duration_s: float,
+    seed: int = 0,
+    *,
+    slow_fraction: float = 0.4,
+    stretch_s: tuple[float, float] = (4.0, 8.0),
+    rates: tuple[float, float] = (0.02, 0.2),
+    ramp_s: float = 0.5,
+) -> TimeWarped:
+    """Band-limited random motion with slow stretches: free motion that also covers low speed.
+
+    :func:`teleoperation_trajectory` (same seed) played at rate 1, except in slow stretches
+    of ``U(*stretch_s)`` s (scaled down together so that they take exactly ``slow_fraction``
+    of ``duration_s``; a stretch shorter than two ramps is refused), played at a rate drawn
+    log-uniform in ``rates`` (:class:`TimeWarped`): the same positions and reversals, visited
+    1/50 to 1/5 as fast, so joint speeds of 0.005-0.1 rad/s are held for seconds instead of
+    crossed in a blink. The stretches are spread evenly with random gaps (none before 3 s).
+    """
+    if not (math.isfinite(duration_s) and duration_s > 0.0):
+        raise ConfigurationError(f"duration_s must be > 0, got {duration_s}")
+    if not 0.0 <= slow_fraction < 1.0:
+        raise ConfigurationError(f"slow_fraction must be in [0, 1), got {slow_fraction}")
+    low, high = (float(x) for x in stretch_s)
+    if not 2.0 * ramp_s <= low <= high:
+        raise ConfigurationError("need 2 ramp_s <= stretch_s[0] <= stretch_s[1]")
+    slowest, fastest = (float(x) for x in rates)
+    if not 0.0 < slowest <= fastest <= 1.0:
+        raise ConfigurationError("need 0 < rates[0] <= rates[1] <= 1")
+    rng = np.random.default_rng(seed + 7919)
+    base = teleoperation_trajectory(seed)
+    target = slow_fraction * duration_s
+    lengths: list[float] = []
+    while sum(lengths) < target:
+        lengths.append(float(rng.uniform(low, high)))
+    if lengths:  # scaled down so that they take the fraction exactly
+        lengths = [length * target / sum(lengths) for length in lengths]
+    free = duration_s - 3.0 - sum(lengths)
+    if lengths and free <= 0.0:
+        raise ConfigurationError("the slow stretches do not fit into the duration")
+    gaps = rng.dirichlet(np.ones(len(lengths) + 1)) * max(free, 0.0)
+    starts, ends = [], []
+    t = 3.0
+    for gap, length in zip(gaps[:-1], lengths, strict=True):
+        t += float(gap)
+        starts.append(t)
+        ends.append(t + length)
+        t += length
+    rate = np.exp(rng.uniform(math.log(slowest), math.log(fastest), size=len(lengths)))
+    return TimeWarped(base, np.array(starts), np.array(ends), rate, ramp_s)
 
 
 def palpation_trajectory(

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from teleop_force.cli.main import main
-from teleop_force.errors import DataError
+from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.estimation import teststand as stand
 from teleop_force.estimation.teststand import (
     estimate_forces,
@@ -68,7 +68,8 @@ def test_default_friction_identifies_a_lab_log_and_says_it_is_the_cv(tmp_path: P
     assert _rms(f_wn[:, 2] - truth[:, 2]) < 1.2  # in-sample, about 0.95 N with measured torques
 
 
-def test_the_force_sensor_only_picks_the_phases_without_contact() -> None:
+@pytest.mark.parametrize("sticking", [False, True], ids=["dead-band", "sticking"])
+def test_the_force_sensor_only_picks_the_phases_without_contact(sticking: bool) -> None:
     """Changing the ATI force inside contact (still contact) changes nothing identified."""
     recording = read_teststand_folder(require("teststand")).recording
     truth = recording.f_tip_in_base_n
@@ -77,10 +78,34 @@ def test_the_force_sensor_only_picks_the_phases_without_contact() -> None:
     other[contact] *= np.linspace(1.0, 3.0, int(contact.sum()))[:, None]
     changed = Recording(recording.t_s, recording.q_rad, recording.tau_nm, other)
     description = stand_robot.teststand_description()
-    a = identify_teststand(recording, description)
-    b = identify_teststand(changed, description)
+    options = stand.TeststandOptions(sticking=sticking)
+    a = identify_teststand(recording, description, options)
+    b = identify_teststand(changed, description, options)
+    assert a.sticking_rad == b.sticking_rad
+    assert (a.sticking_rad > 0.0) == sticking
     np.testing.assert_array_equal(a.model.base_values, b.model.base_values)
     np.testing.assert_array_equal(a.model.friction.parameters, b.model.friction.parameters)
+
+
+def test_the_sticking_state_holds_at_rest_and_follows_the_path() -> None:
+    """The Dahl state: +-1 after a few transition angles of motion, held at rest."""
+    phi = 0.01
+    up = np.linspace(0.0, 0.1, 101)  # 10 transition angles up, then rest, then 0.5 phi back
+    q = np.concatenate((up, np.full(50, 0.1), 0.1 - np.linspace(0.0, 0.005, 11)[1:]))
+    z = stand.dahl_state(np.column_stack((q, -q)), phi)
+    assert z[0, 0] == 0.0 and z[100, 0] == pytest.approx(1.0, abs=1e-4)
+    np.testing.assert_array_equal(z[100:150, 0], z[100, 0])  # at rest: the last motion's
+    np.testing.assert_allclose(z[:, 1], -z[:, 0])
+    assert 0.0 < z[-1, 0] < 0.5  # half a transition angle back: on its way to -1
+    # the path, not the time: the same angles sampled twice as densely give the same end state
+    dense = stand.dahl_state(
+        np.interp(np.arange(2 * q.size - 1) / 2, np.arange(q.size), q)[:, None], phi
+    )
+    assert dense[-1, 0] == pytest.approx(z[-1, 0], abs=0.02)
+    with pytest.raises(ConfigurationError):
+        stand.dahl_state(q[:, None], 0.0)
+    with pytest.raises(ConfigurationError, match="cv friction"):
+        stand.TeststandOptions(friction="coupled-cv", sticking=True)
 
 
 def test_identifying_without_the_force_sensor_names_its_file() -> None:
@@ -94,11 +119,19 @@ def test_held_out_third_beats_the_urdf_and_keeps_in_sample_apart() -> None:
     report = held_out_study(require("teststand"))
     assert report.train_samples + report.test_samples == 2991
     assert report.test_samples == 997 and report.free_samples > 50
-    # what this version reaches (0.82 of the URDF's error): better than the URDF, short of
-    # the issue's 2/3 goal, and reported as such
-    assert report.ratio < 0.9
+    # what this version reaches (0.66 of the URDF's error, at the issue's 2/3 goal by a
+    # hair): the sticking Coulomb term takes the bias the dead band leaves at standstill
+    assert report.ratio < 0.7
     assert report.goal_met == (report.ratio <= GOAL_RATIO)
     assert report.ours.rms_n < report.urdf.rms_n < report.lab.rms_n  # type: ignore[union-attr]
+    dead_band = report.dead_band
+    assert dead_band is not None and report.ours.rms_n < dead_band.rms_n
+    assert abs(report.ours.bias_n) < 0.5 * dead_band.bias_n
+    assert report.ours.standstill_rms_n < dead_band.standstill_rms_n
+    low, high = stand.STICKING_RANGE_RAD
+    assert low < report.options["sticking_rad"] < high
+    # the first part's contact samples are reported beside, not mixed into the held-out ones
+    assert set(report.first_part_contact_n) == {"urdf", "ours", "dead_band"}
     # the split: the lag is the filters' alone, the same for both models
     assert report.ours.lag_n == pytest.approx(report.urdf.lag_n)
     split = np.sqrt(report.ours.lag_n**2 + report.ours.bias_n**2 + report.ours.spread_n**2)

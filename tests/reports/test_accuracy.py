@@ -13,6 +13,7 @@ from teleop_force.reports.accuracy import (
     CascadeReference,
     accuracy_figures,
     accuracy_table,
+    identify_free_motion,
     session_accuracy,
     write_accuracy_report,
 )
@@ -90,3 +91,28 @@ def test_cli_flags() -> None:
         ["accuracy", "--family", "one", "two", "--seeds", "1", "2", "-o", "out", "--json"]
     )
     assert args.family == ["one", "two"] and args.seeds == [1, 2] and args.json
+
+
+def test_identification_protocol_and_friction_are_options() -> None:
+    with pytest.raises(ConfigurationError):
+        AccuracyOptions(identify_protocol="palpation")
+    with pytest.raises(ConfigurationError):
+        AccuracyOptions(friction="lugre")
+    assert AccuracyOptions().identify_protocol == "teleoperation"
+    assert AccuracyOptions().friction is None  # the Omni's default, as `identify` fits it
+    model, session = identify_free_motion(
+        "one", 2, 8.0, protocol="slow-stretch", friction="coupled-cv"
+    )
+    assert session.name == "slow-stretch" and session.contact is None
+    assert str(model.friction.kind) == "coupled-cv"
+    with pytest.raises(ConfigurationError):
+        identify_free_motion("one", 2, 8.0, protocol="palpation")
+
+
+def test_cli_protocol_and_friction_flags() -> None:
+    args = build_parser().parse_args(
+        ["accuracy", "--identify-protocol", "slow-stretch", "--friction", "coupled-cv", "-o", "x"]
+    )
+    assert args.identify_protocol == "slow-stretch" and args.friction == "coupled-cv"
+    defaults = build_parser().parse_args(["accuracy", "-o", "x"])
+    assert defaults.identify_protocol == "teleoperation" and defaults.friction is None

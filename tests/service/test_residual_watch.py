@@ -187,6 +187,25 @@ def test_only_poses_the_baseline_visited_are_compared() -> None:
     assert matched.nuisance.shape == (50, 5)
 
 
+def test_the_baseline_matched_with_itself_pairs_only_other_moves() -> None:
+    # the baseline's own rows enter the test as rows without a change: each is compared with
+    # baseline neighbours at least `apart_s` away in time, never with its own move (whose
+    # noise is correlated with it). Two passes over the same angles, 10 s apart, each with its
+    # own offset (+-0.01 N m): kept apart, each pass is compared with the other one only.
+    n = 150
+    q = np.column_stack((np.linspace(-0.45, 0.45, n), np.zeros(n), np.zeros(n)))
+    qd = np.column_stack((np.full(n, 0.3), np.zeros(n), np.zeros(n)))
+    offset = np.column_stack((np.ones(n), np.zeros(n), np.zeros(n))) * 0.01
+    base = Rows.concat((_rows(q, qd, offset), _rows(q, qd, -offset, t0=10.0)))
+    apart = _match(base, base, 0, radius_rad=0.15, least=5, apart_s=1.0)
+    assert apart is not None and apart.rows > n  # most rows have the other pass near them
+    first = apart.t_s < 5.0
+    assert np.allclose(apart.difference[first], 0.02)
+    assert np.allclose(apart.difference[~first], -0.02)
+    alone = _match(base, base, 0, radius_rad=0.15, least=5)
+    assert alone is not None and np.all(np.abs(alone.difference) < 0.015)
+
+
 def test_rows_average_tau_ext_over_their_interval() -> None:
     x = np.arange(100.0)[:, None] * np.ones((1, 3))
     idx = np.array([20, 40])

@@ -11,7 +11,7 @@ from teleop_force.simulation import (
     simulate_session,
     teleoperation_protocol,
 )
-from teleop_force.simulation.session import _ARRAY_FIELDS
+from teleop_force.simulation.session import _ARRAY_FIELDS, slow_stretch_protocol
 from teleop_force.simulation.trajectories import rigid_body_trajectory
 from teleop_force.simulation.true_friction import TrueFriction
 
@@ -72,3 +72,16 @@ def test_invalid_arguments() -> None:
         simulate_session(trajectory, duration_s=0.1, seed=-1)
     with pytest.raises(ConfigurationError):
         simulate_session(trajectory, duration_s=0.1, effects=("cogging",))  # type: ignore[arg-type]
+
+
+def test_slow_stretch_protocol_is_free_motion_with_slow_stretches() -> None:
+    session = slow_stretch_protocol(duration_s=12.0, seed=2, slow_fraction=0.4)
+    assert session.name == "slow-stretch" and session.contact is None
+    assert not np.any(session.f_tip_in_base_n)
+    plain = teleoperation_protocol(duration_s=12.0, seed=2)
+    # the same motion until the first stretch (>= 3 s), then slower
+    early = session.t_s < 3.0
+    np.testing.assert_allclose(session.q_ref_rad[early], plain.q_ref_rad[early])
+    speed = np.abs(session.qd_ref_rad_s).mean()
+    assert speed < 0.9 * np.abs(plain.qd_ref_rad_s).mean()
+    assert session.family == "one"

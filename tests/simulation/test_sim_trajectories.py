@@ -7,11 +7,13 @@ from teleop_force.simulation.trajectories import (
     DEFAULT_MARGIN_RAD,
     CartesianWaypoints,
     MultiSine,
+    TimeWarped,
     Trajectory,
     friction_trajectory,
     omni_inverse_kinematics,
     palpation_trajectory,
     rigid_body_trajectory,
+    slow_stretch_trajectory,
     teleoperation_trajectory,
 )
 
@@ -25,6 +27,7 @@ def _all_trajectories() -> list[Trajectory]:
         *(friction_trajectory(mode, 1) for mode in ("equal", "opposite", "independent")),
         teleoperation_trajectory(0),
         teleoperation_trajectory(5),
+        slow_stretch_trajectory(240.0, 2),
     ]
 
 
@@ -135,3 +138,59 @@ def test_multisine_validation() -> None:
         MultiSine(np.zeros(1), np.ones((1, 2)), -np.ones((1, 2)), np.zeros((1, 2)))
     with pytest.raises(DataError):
         rigid_body_trajectory().sample(np.zeros((2, 2)))
+
+
+def test_time_warp_is_the_base_motion_slowed_in_its_stretches() -> None:
+    base = teleoperation_trajectory(3)
+    warped = TimeWarped(base, np.array([5.0, 20.0]), np.array([12.0, 26.0]), np.array([0.1, 0.5]))
+    t = np.arange(0.0, 40.0, 1e-3)
+    tau, rate = warped.warp(t)
+    # rate 1 before the first stretch: the base motion itself
+    early = t < 5.0
+    np.testing.assert_array_equal(warped.sample(t[early])[0], base.sample(t[early])[0])
+    # the held rate inside a stretch, 1 between and after them
+    assert rate[(t > 5.6) & (t < 11.4)] == pytest.approx(0.1)
+    assert rate[(t > 12.0) & (t < 20.0)] == pytest.approx(1.0)
+    assert rate[(t > 20.6) & (t < 25.4)] == pytest.approx(0.5)
+    # tau is the rate's integral (slow by (1 - r) times the stretch's depth area)
+    np.testing.assert_allclose(np.gradient(tau, t)[1:-1], rate[1:-1], atol=1e-5)
+    lost = 0.9 * (7.0 - 0.5) + 0.5 * (6.0 - 0.5)
+    assert tau[-1] == pytest.approx(t[-1] - lost, abs=1e-9)
+    # velocities are the positions' derivative (continuous across the ramps)
+    q, qd = warped.sample(t)
+    np.testing.assert_allclose(np.gradient(q, t, axis=0)[1:-1], qd[1:-1], atol=2e-4)
+    q_scalar, qd_scalar = warped.sample(8.0)
+    assert q_scalar.shape == (3,) and qd_scalar.shape == (3,)
+
+
+def test_slow_stretches_hold_low_speeds() -> None:
+    t = np.arange(0.0, 120.0, 1e-3)
+    slow = slow_stretch_trajectory(120.0, 1)
+    plain = teleoperation_trajectory(1)
+    covered = (slow.ends_s - slow.starts_s).sum()
+    assert covered == pytest.approx(0.4 * 120.0, abs=1e-6) and slow.starts_s[0] >= 3.0
+    assert slow.ends_s[-1] <= 120.0 and np.all(slow.rates >= 0.02) and np.all(slow.rates <= 0.2)
+    _, qd_slow = slow.sample(t)
+    _, qd_plain = plain.sample(t)
+    below = lambda qd: np.mean(np.abs(qd) < 0.05, axis=0)  # noqa: E731
+    assert np.all(below(qd_slow) > below(qd_plain) + 0.15)
+    assert slow_stretch_trajectory(120.0, 1, slow_fraction=0.0).starts_s.size == 0
+    again = slow_stretch_trajectory(120.0, 1)
+    np.testing.assert_array_equal(again.starts_s, slow.starts_s)
+
+
+def test_time_warp_refuses_bad_stretches() -> None:
+    base = teleoperation_trajectory(0)
+    for starts, ends, rates in (
+        ([1.0], [1.5], [0.1]),  # shorter than two ramps
+        ([1.0, 3.0], [4.0, 6.0], [0.1, 0.1]),  # overlapping
+        ([1.0], [4.0], [0.0]),  # rate 0
+        ([1.0], [4.0], [1.5]),  # faster than the base
+        ([1.0], [4.0, 6.0], [0.1]),  # shapes differ
+    ):
+        with pytest.raises(ConfigurationError):
+            TimeWarped(base, np.array(starts), np.array(ends), np.array(rates))
+    with pytest.raises(ConfigurationError):
+        slow_stretch_trajectory(10.0, 0, slow_fraction=0.9)
+    with pytest.raises(ConfigurationError):
+        slow_stretch_trajectory(120.0, 0, rates=(0.3, 0.1))
