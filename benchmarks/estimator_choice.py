@@ -23,6 +23,7 @@ from collections import defaultdict
 from typing import Any
 
 from teleop_force.reports.accuracy import (
+    DEFAULT_IDENTIFY_PROTOCOL,
     IDENTIFY_PROTOCOLS,
     TEST_SEED_OFFSET,
     BatchEstimate,
@@ -61,7 +62,7 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument("--json", action="store_true", help="print every figure as JSON")
     parser.add_argument(
-        "--identify-protocol", choices=IDENTIFY_PROTOCOLS, default=IDENTIFY_PROTOCOLS[0]
+        "--identify-protocol", choices=list(IDENTIFY_PROTOCOLS), default=DEFAULT_IDENTIFY_PROTOCOL
     )
     parser.add_argument("--friction", default=None, help="friction kind (default: the Omni's)")
     args = parser.parse_args()

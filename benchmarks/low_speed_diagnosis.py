@@ -42,6 +42,7 @@ from teleop_force.estimation.batch import (
 )
 from teleop_force.friction.terms import standstill_factors
 from teleop_force.reports.accuracy import (
+    DEFAULT_IDENTIFY_PROTOCOL,
     IDENTIFY_PROTOCOLS,
     TEST_SEED_OFFSET,
     CascadeReference,
@@ -64,7 +65,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument(
-        "--identify-protocol", choices=IDENTIFY_PROTOCOLS, default=IDENTIFY_PROTOCOLS[0]
+        "--identify-protocol", choices=list(IDENTIFY_PROTOCOLS), default=DEFAULT_IDENTIFY_PROTOCOL
     )
     args = parser.parse_args()
     family = PlantFamily.ONE

@@ -75,8 +75,13 @@ ReferenceFilter = Callable[[np.ndarray, float], np.ndarray]
 REST_SPEED_RAD_S = 0.01
 #: Offset between the identification and the test session's seeds.
 TEST_SEED_OFFSET = 100
-#: The free-motion protocols a model can be identified on (the first is the default).
-IDENTIFY_PROTOCOLS = ("teleoperation", "slow-stretch")
+#: The free-motion protocols a model can be identified on, by name.
+IDENTIFY_PROTOCOLS: dict[str, Callable[..., SimulatedSession]] = {
+    "teleoperation": teleoperation_protocol,
+    "slow-stretch": slow_stretch_protocol,
+}
+#: The protocol identified on by default.
+DEFAULT_IDENTIFY_PROTOCOL = "teleoperation"
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,7 @@ class AccuracyOptions:
 
     identify_duration_s: float = 120.0
     test_duration_s: float = 60.0
-    identify_protocol: str = IDENTIFY_PROTOCOLS[0]
+    identify_protocol: str = DEFAULT_IDENTIFY_PROTOCOL
     friction: str | None = None
 
     def __post_init__(self) -> None:
@@ -161,11 +166,7 @@ class AccuracyOptions:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 1.0):
                 raise ConfigurationError(f"{name} must be > 1 s, got {value}")
-        if self.identify_protocol not in IDENTIFY_PROTOCOLS:
-            raise ConfigurationError(
-                f"identify_protocol must be one of {IDENTIFY_PROTOCOLS},"
-                f" got {self.identify_protocol!r}"
-            )
+        _identify_protocol(self.identify_protocol)
         if self.friction is not None:
             FrictionKind.parse(self.friction)
 
@@ -251,7 +252,7 @@ def identify_free_motion(
     seed: int,
     duration_s: float = 120.0,
     *,
-    protocol: str = IDENTIFY_PROTOCOLS[0],
+    protocol: str = DEFAULT_IDENTIFY_PROTOCOL,
     friction: str | None = None,
 ) -> tuple[DynamicModel, SimulatedSession]:
     """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm.
@@ -260,9 +261,7 @@ def identify_free_motion(
     the Omni's default.
     """
     family = PlantFamily.parse(family)
-    if protocol not in IDENTIFY_PROTOCOLS:
-        raise ConfigurationError(f"protocol must be one of {IDENTIFY_PROTOCOLS}, got {protocol!r}")
-    run = teleoperation_protocol if protocol == "teleoperation" else slow_stretch_protocol
+    run = _identify_protocol(protocol)
     session = run(duration_s, seed, family=family, plant_config=plant_config(family, seed))
     defaults = robot_defaults(RobotKind.OMNI)  # what `teleop-force identify` fits by default
     model, _ = identify_model(
@@ -272,6 +271,17 @@ def identify_free_motion(
         offsets=defaults.offsets,
     )
     return model, session
+
+
+def _identify_protocol(name: str) -> Callable[..., SimulatedSession]:
+    """Return the protocol of :data:`IDENTIFY_PROTOCOLS` called ``name``; raise if unknown."""
+    try:
+        return IDENTIFY_PROTOCOLS[name]
+    except KeyError:
+        choices = ", ".join(IDENTIFY_PROTOCOLS)
+        raise ConfigurationError(
+            f"identify_protocol must be one of {choices}, got {name!r}"
+        ) from None
 
 
 def plant_config(family: PlantFamily, seed: int) -> PlantConfig | PlantTwoConfig | None:
