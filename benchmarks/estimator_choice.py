@@ -52,6 +52,41 @@ CANDIDATES: tuple[dict[str, Any], ...] = (
         {"estimator": "observer", "observer_hz": 24.0, "standstill_band_rad_s": band}
         for band in (0.01, 0.02, 0.05)
     ),
+    # the observer on its own pre-filter (issue #19, fifth session): one stage at L_v's 20 Hz
+    # (what the observer ran on before), two stages in cascade at 30-50 Hz
+    {
+        "estimator": "observer",
+        "observer_hz": 24.0,
+        "observer_prefilter_hz": 20.0,
+        "observer_prefilter_stages": 1,
+    },
+    *(
+        {
+            "estimator": "observer",
+            "observer_hz": hz,
+            "observer_prefilter_hz": pre,
+            "observer_prefilter_stages": 2,
+        }
+        for hz, pre in (
+            (30.0, 40.0),
+            (40.0, 40.0),
+            (50.0, 40.0),
+            (35.0, 35.0),
+            (40.0, 45.0),
+            (50.0, 50.0),
+            (40.0, 30.0),
+        )
+    ),
+    *(
+        {
+            "estimator": "observer",
+            "observer_hz": 40.0,
+            "observer_prefilter_hz": 40.0,
+            "observer_prefilter_stages": 2,
+            "standstill_band_rad_s": band,
+        }
+        for band in (0.0, 0.01, 0.04)
+    ),
 )
 
 

@@ -18,7 +18,8 @@ touching a soft floor with the default estimator, and print
 4. the figures of :mod:`~teleop_force.reports.accuracy` with the model's friction replaced
    by: its coupled-CV fallback alone; the plant's *true* friction at the estimator's velocity
    (what any friction function of the measured motion can reach at best); the true friction
-   at the true velocity (not realisable: a ceiling). The estimator's momentum observer is
+   at the true velocity (not realisable: a ceiling); the model's friction with the last
+   sliding value held at rest instead of the dead band. The estimator's momentum observer is
    linear in the friction torque, so each variant is the default estimate plus the
    observer's response to the friction difference (reproduces the full estimator: the
    ``model`` row equals ``teleop-force accuracy``).
@@ -58,6 +59,21 @@ SPEED_EDGES = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf)
 
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def _held_at_rest(friction: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """Return the friction, its last value where every joint moved held through the dead band.
+
+    A sticking Coulomb term (as the test stand's): ``factor f + (1 - factor) f_last``, with
+    ``f_last`` the friction at the last sample whose standstill factor was 1.
+    """
+    out = np.empty_like(friction)
+    last = np.zeros(friction.shape[1])
+    for k in range(friction.shape[0]):
+        if factor[k] >= 1.0:
+            last = friction[k]
+        out[k] = factor[k] * friction[k] + (1.0 - factor[k]) * last
+    return out
 
 
 def main() -> None:
@@ -138,8 +154,9 @@ def main() -> None:
         t = np.ascontiguousarray(test.t_s)
         starts = _start_mask(t.size, None)
         q = np.ascontiguousarray(test.q_rad)
+        prefilter_hz, stages = config.estimator_prefilter
         _, _, qd, dt = _prefilter(
-            t, q, np.ascontiguousarray(test.tau_nm), starts, 2 * np.pi * config.velocity_cutoff_hz
+            t, q, np.ascontiguousarray(test.tau_nm), starts, 2 * np.pi * prefilter_hz, stages
         )
         used = model.friction_torque(qd) * standstill_factors(qd, band)[:, None]
         fallback = model.friction.fallback
@@ -152,6 +169,9 @@ def main() -> None:
                 true_friction.torque(qd) * standstill_factors(qd, band)[:, None]
             ),
             "true friction at the true velocity (ceiling)": true_friction.torque(qd_true),
+            "sticking: the last sliding friction held at rest": _held_at_rest(
+                model.friction_torque(qd), standstill_factors(qd, band)
+            ),
         }
         for name, torque in variants.items():
             delta = np.ascontiguousarray(torque - used)
@@ -165,13 +185,17 @@ def main() -> None:
                 accuracy_figures(test, tip, reference, config.warmup_s)  # type: ignore[arg-type]
             )
     print(f"\nfamily one, seeds {' '.join(map(str, args.seeds))} ({args.identify_protocol})")
-    print("| friction in the estimate | error in contact [%] | false force, free [N] | bias [N] |")
-    print("|---|---|---|---|")
+    print(
+        "| friction in the estimate | error in contact [%] | false force, free [N]"
+        " | error at rest [N] | bias [N] |"
+    )
+    print("|---|---|---|---|---|")
     for name, rows in table.items():
         per_seed = " / ".join(f"{r['contact_error_pct']:.2f}" for r in rows)
         free = np.mean([r["free_false_force_n"] for r in rows])
+        rest = " / ".join(f"{r['rest_contact_error_n']:.3f}" for r in rows)
         bias = np.mean([r["bias_n"] for r in rows])
-        print(f"| {name} | {per_seed} | {free:.3f} | {bias:.3f} |")
+        print(f"| {name} | {per_seed} | {free:.3f} | {rest} | {bias:.3f} |")
 
 
 if __name__ == "__main__":

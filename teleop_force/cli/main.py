@@ -17,7 +17,7 @@ from typing import Any, TypeAlias
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, TeleopForceError
-from teleop_force.estimation.flags import add_estimator_arguments
+from teleop_force.estimation.flags import add_estimator_arguments, forwarded_estimator_arguments
 from teleop_force.transport.session import add_zenoh_arguments
 
 EXIT_OK = 0
@@ -251,8 +251,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             for flag, on in (("--adapt", args.adapt), ("--zenoh-floor", args.zenoh_floor))
             if on
         )
-        + (() if args.estimator is None else ("--estimator", args.estimator))
-        + (() if args.observer_hz is None else ("--observer-hz", repr(args.observer_hz))),
+        + forwarded_estimator_arguments(args),
         slave_args=_plant_effect_args(args),
         **({} if args.rt_priority is None else {"rt_priority": args.rt_priority}),
         **({} if args.nice is None else {"realtime_nice": args.nice}),
@@ -476,8 +475,9 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     overrides: dict[str, object] = {}
     if args.estimator is not None:
         overrides["estimator"] = args.estimator
-    if args.observer_hz is not None:
-        overrides["observer_hz"] = args.observer_hz
+    for name in ("observer_hz", "observer_prefilter_hz", "observer_prefilter_stages"):
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
     results = run_accuracy(
         args.family, args.seeds, estimate=BatchEstimate(overrides), options=options, log=_log
     )

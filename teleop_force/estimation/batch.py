@@ -137,7 +137,8 @@ class BatchEstimator:
         self.robot, spring_stiffness = equivalent_rigid_body(model)
         config = model.filter_config
         self._lag = int(config.torque_lag_samples)
-        self._omega_v = _TWO_PI * config.velocity_cutoff_hz
+        prefilter_hz, self._prefilter_stages = config.estimator_prefilter
+        self._omega_v = _TWO_PI * prefilter_hz
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
@@ -188,7 +189,9 @@ class BatchEstimator:
         with ThreadPoolExecutor(_threads()) as pool:
             # the tip Jacobian reads the raw angles only: computed meanwhile
             jacobian = pool.submit(self._jacobians, q)
-            q_v, tau_v, qd, dt = _prefilter(t, q, tau, starts, self._omega_v)
+            q_v, tau_v, qd, dt = _prefilter(
+                t, q, tau, starts, self._omega_v, self._prefilter_stages
+            )
             momentum, rigid_other = self._rigid_terms(q_v, qd)
             load = _rigid_load(momentum, rigid_other, dt, starts, self._omega)
             t_first = t[np.maximum.accumulate(np.where(starts, np.arange(t.size), 0))]
@@ -424,14 +427,24 @@ def _pinocchio_jacobian(robot: Robot, q_model: np.ndarray) -> np.ndarray:
 
 @njit_cached()
 def _prefilter(
-    t: np.ndarray, q: np.ndarray, tau: np.ndarray, starts: np.ndarray, omega_v: float
+    t: np.ndarray,
+    q: np.ndarray,
+    tau: np.ndarray,
+    starts: np.ndarray,
+    omega_v: float,
+    stages: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """``L_v(q)``, ``L_v(tau)``, the backward difference of ``L_v(q)`` and ``dt`` per sample."""
+    """Return the pre-filtered angles and torques, the angles' backward difference and ``dt``.
+
+    ``stages`` (1 or 2) first-order low-passes at ``omega_v`` in cascade, as
+    :func:`~teleop_force.estimation.kernels.prefilter_step` per sample.
+    """
     n_samples, n = q.shape
     q_v = np.empty((n_samples, n))
     tau_v = np.empty((n_samples, n))
     qd = np.empty((n_samples, n))
     dt = np.empty(n_samples)
+    inner = np.empty(2 * n)
     for k in range(n_samples):
         if starts[k]:
             dt[k] = _FIRST_DT_S
@@ -439,18 +452,28 @@ def _prefilter(
                 q_v[k, i] = q[k, i]
                 tau_v[k, i] = tau[k, i]
                 qd[k, i] = 0.0
+                inner[i] = q[k, i]
+                inner[n + i] = tau[k, i]
             continue
         step = t[k] - t[k - 1]
         dt[k] = step
         a = math.exp(-omega_v * step)
         b = 1.0 - a
         for i in range(n):
+            value = q[k, i]
+            if stages == 2:
+                value = a * inner[i] + b * value
+                inner[i] = value
             previous = q_v[k - 1, i]
-            value = a * previous + b * q[k, i]
-            q_v[k, i] = value
-            qd[k, i] = (value - previous) / step
+            filtered = a * previous + b * value
+            q_v[k, i] = filtered
+            qd[k, i] = (filtered - previous) / step
         for i in range(n):
-            tau_v[k, i] = a * tau_v[k - 1, i] + b * tau[k, i]
+            value = tau[k, i]
+            if stages == 2:
+                value = a * inner[n + i] + b * value
+                inner[n + i] = value
+            tau_v[k, i] = a * tau_v[k - 1, i] + b * value
     return q_v, tau_v, qd, dt
 
 

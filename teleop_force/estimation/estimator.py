@@ -12,8 +12,11 @@ regressor. Per sample::
     F           = J(q)^-T tau_ext_L        (base frame, force of the tip on the environment)
 
 or, with the model's ``estimator`` ``observer``, ``tau_ext`` the residual of the
-generalised-momentum observer (:mod:`teleop_force.estimation.momentum_observer`) on the same
-``p = M(q_v) qd``, ``beta``, friction and ``L_v(tau)``, and ``tau_model_L = tau_L - tau_ext``.
+generalised-momentum observer (:mod:`teleop_force.estimation.momentum_observer`) on
+``p = M(q_v) qd``, ``beta``, friction and the pre-filtered torque, and
+``tau_model_L = tau_L - tau_ext``; the observer's pre-filter is its own
+(:attr:`~teleop_force.identification.filtered_regressor.FilterConfig.estimator_prefilter`:
+one or two first-order stages in cascade, ``L_v`` for models written before it).
 Below the model's standstill band every friction torque is ramped to 0
 (:func:`~teleop_force.friction.terms.standstill_factor`). The filter form is, sample for
 sample, the batch computation of
@@ -109,21 +112,33 @@ def with_estimator(
     estimator: str | None = None,
     observer_hz: float | None = None,
     standstill_band_rad_s: float | None = None,
+    *,
+    observer_prefilter_hz: float | None = None,
+    observer_prefilter_stages: int | None = None,
 ) -> DynamicModel:
     """Return ``model`` with its filter configuration's estimator choice overridden.
 
     ``None`` keeps the model's own value; the result is ``model`` itself when nothing changes.
     Its ``to_dict`` records the estimator that made the estimates. Raises ConfigurationError
-    for an unknown estimator or a bandwidth or band out of range.
+    for an unknown estimator or a bandwidth, band or number of stages out of range.
     """
     config = model.filter_config
-    changes: dict[str, Any] = {}
-    if estimator is not None and estimator != config.estimator:
-        changes["estimator"] = estimator
-    if observer_hz is not None and observer_hz != config.observer_hz:
-        changes["observer_hz"] = float(observer_hz)
-    if standstill_band_rad_s is not None and standstill_band_rad_s != config.standstill_band_rad_s:
-        changes["standstill_band_rad_s"] = float(standstill_band_rad_s)
+    wanted: dict[str, Any] = {
+        "estimator": estimator,
+        "observer_hz": None if observer_hz is None else float(observer_hz),
+        "standstill_band_rad_s": (
+            None if standstill_band_rad_s is None else float(standstill_band_rad_s)
+        ),
+        "observer_prefilter_hz": (
+            None if observer_prefilter_hz is None else float(observer_prefilter_hz)
+        ),
+        "observer_prefilter_stages": observer_prefilter_stages,
+    }
+    changes = {
+        name: value
+        for name, value in wanted.items()
+        if value is not None and value != getattr(config, name)
+    }
     if not changes:
         return model
     return dataclasses.replace(model, filter_config=dataclasses.replace(config, **changes))
@@ -131,7 +146,20 @@ def with_estimator(
 
 def estimator_from_args(model: DynamicModel, args: argparse.Namespace) -> DynamicModel:
     """Return ``model`` with the estimator flags (:mod:`teleop_force.estimation.flags`) applied."""
-    return with_estimator(model, args.estimator, args.observer_hz)
+    return with_estimator(
+        model, args.estimator, args.observer_hz,
+        observer_prefilter_hz=args.observer_prefilter_hz,
+        observer_prefilter_stages=args.observer_prefilter_stages,
+    )  # fmt: skip
+
+
+#: The estimator choice a recording's metadata carries (all strings).
+_RECORDED_NUMBERS = (
+    "observer_hz",
+    "standstill_band_rad_s",
+    "observer_prefilter_hz",
+    "observer_prefilter_stages",
+)
 
 
 def estimator_metadata(model: DynamicModel) -> dict[str, str]:
@@ -141,24 +169,36 @@ def estimator_metadata(model: DynamicModel) -> dict[str, str]:
         "estimator": config.estimator,
         "observer_hz": repr(float(config.observer_hz)),
         "standstill_band_rad_s": repr(float(config.standstill_band_rad_s)),
+        "observer_prefilter_hz": repr(float(config.observer_prefilter_hz)),
+        "observer_prefilter_stages": str(int(config.observer_prefilter_stages)),
     }
 
 
 def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> DynamicModel:
     """Return ``model`` with the estimator choice a recording's metadata names (if it does).
 
-    Raises ConfigurationError for metadata that is not a valid choice.
+    A recording made before the observer had its own pre-filter names none: its observer ran
+    on ``L_v`` (the model's ``velocity_cutoff_hz``, one stage). Raises ConfigurationError for
+    metadata that is not a valid choice.
     """
     numbers: dict[str, float | None] = {}
-    for key in ("observer_hz", "standstill_band_rad_s"):
+    for key in _RECORDED_NUMBERS:
         text = metadata.get(key)
         try:
             numbers[key] = None if not text else float(text)
         except ValueError:
             raise ConfigurationError(f"recording metadata {key}={text!r} is not a number") from None
+    stages = numbers["observer_prefilter_stages"]
+    prefilter_hz = numbers["observer_prefilter_hz"]
+    if metadata.get("estimator") and prefilter_hz is None:  # recorded before the field
+        prefilter_hz = model.filter_config.velocity_cutoff_hz
+        stages = 1.0
+    if stages is not None and stages not in (1.0, 2.0):
+        raise ConfigurationError(f"recording metadata observer_prefilter_stages={stages!r}")
     return with_estimator(
         model, metadata.get("estimator") or None, numbers["observer_hz"],
-        numbers["standstill_band_rad_s"],
+        numbers["standstill_band_rad_s"], observer_prefilter_hz=prefilter_hz,
+        observer_prefilter_stages=None if stages is None else int(stages),
     )  # fmt: skip
 
 
@@ -216,7 +256,8 @@ class ForceEstimator:
         self._terms = ModelTerms(model)
         config = model.filter_config
         self._lag = int(config.torque_lag_samples)
-        self._omega_v = _TWO_PI * config.velocity_cutoff_hz
+        prefilter_hz, self._prefilter_stages = config.estimator_prefilter
+        self._omega_v = _TWO_PI * prefilter_hz
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
@@ -243,9 +284,9 @@ class ForceEstimator:
         return StepTables.create(
             self._terms, chain_tables(robot.model, robot.description.tip_frame),
             coupling=self._coupling, rotor=self._rotor, springs=self._springs,
-            omega_v=self._omega_v, omega=self._omega, omega_observer=self._omega_observer,
-            observer=self._observer, lag=self._lag, sigma_min=self.sigma_min,
-            tip=self._tip_kernel,
+            omega_v=self._omega_v, prefilter_stages=self._prefilter_stages, omega=self._omega,
+            omega_observer=self._omega_observer, observer=self._observer, lag=self._lag,
+            sigma_min=self.sigma_min, tip=self._tip_kernel,
         )  # fmt: skip
 
     def _allocate(self) -> None:
@@ -300,8 +341,8 @@ class ForceEstimator:
         except (TypeError, ValueError) as exc:
             raise DataError(f"expected {n} joint angles and torques: {exc}") from exc
         code = prefilter_step(
-            self._state, sample, self._omega_v, self._coupling, self._q_model, self._v_model,
-            self._q_jacobian,
+            self._state, sample, self._omega_v, self._prefilter_stages, self._coupling,
+            self._q_model, self._v_model, self._q_jacobian,
         )  # fmt: skip
         if code != STEP_OK:
             raise self._step_error(code, t_s)

@@ -13,7 +13,11 @@ ESTIMATORS = ("filter", "observer")
 
 
 def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--estimator {filter,observer}`` and ``--observer-hz HZ`` (the model's when absent)."""
+    """Add the estimator's flags (each the model's value when absent).
+
+    ``--estimator``, ``--observer-hz``, ``--observer-prefilter-hz``,
+    ``--observer-prefilter-stages``.
+    """
     parser.add_argument(
         "--estimator", choices=ESTIMATORS, default=None,
         help="estimator of the external torque: the filtered dynamics or the momentum "
@@ -24,3 +28,31 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         "--observer-hz", type=float, default=None, metavar="HZ",
         help="bandwidth of the momentum observer [Hz] (default: the model's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--observer-prefilter-hz", type=float, default=None, metavar="HZ",
+        help="cutoff of each stage of the observer's pre-filter of angles and torques [Hz] "
+        "(default: the model's)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--observer-prefilter-stages", type=int, choices=(1, 2), default=None,
+        help="first-order stages of the observer's pre-filter (default: the model's)",
+    )  # fmt: skip
+
+
+#: The estimator flags and their ``argparse`` destinations, in the order they are forwarded.
+_FLAGS = (
+    ("--estimator", "estimator"),
+    ("--observer-hz", "observer_hz"),
+    ("--observer-prefilter-hz", "observer_prefilter_hz"),
+    ("--observer-prefilter-stages", "observer_prefilter_stages"),
+)
+
+
+def forwarded_estimator_arguments(args: argparse.Namespace) -> tuple[str, ...]:
+    """Return the estimator flags ``args`` holds, as words for a child's command line."""
+    words: list[str] = []
+    for flag, name in _FLAGS:
+        value = getattr(args, name)
+        if value is not None:
+            words += [flag, value if isinstance(value, str) else repr(value)]
+    return tuple(words)

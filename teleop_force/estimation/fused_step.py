@@ -63,8 +63,8 @@ N_NETWORK_INT_SLOTS = 3
 # Entries of the scalar and flag slots.
 S_OMEGA_V, S_OMEGA, S_SIGMA_MIN, S_OMEGA_OBSERVER, S_STANDSTILL_BAND = 0, 1, 2, 3, 4
 N_SCALARS = 5
-G_LAG, G_RIGID, G_TIP, G_MODE, G_TIP_BODY, G_OBSERVER = 0, 1, 2, 3, 4, 5
-N_FLAGS = 6
+G_LAG, G_RIGID, G_TIP, G_MODE, G_TIP_BODY, G_OBSERVER, G_PREFILTER_STAGES = 0, 1, 2, 3, 4, 5, 6
+N_FLAGS = 7
 #: Entries per slot in a header: offset, then three dimensions (unused ones are 1).
 HEADER_WIDTH = 4
 
@@ -176,7 +176,10 @@ def fused_step(
     q_model = work[:n_model]
     v_model = work[n_model : 2 * n_model]
     q_jacobian = work[2 * n_model : 3 * n_model]
-    code = prefilter_step(state, sample, scalars[S_OMEGA_V], coupling, q_model, v_model, q_jacobian)
+    code = prefilter_step(
+        state, sample, scalars[S_OMEGA_V], flags[G_PREFILTER_STAGES], coupling, q_model, v_model,
+        q_jacobian,
+    )  # fmt: skip
     if code != STEP_OK:
         return code
     o = 3 * n_model
@@ -276,6 +279,7 @@ class StepTables:
         rotor: np.ndarray,
         springs: np.ndarray,
         omega_v: float,
+        prefilter_stages: int,
         omega: float,
         omega_observer: float,
         observer: bool,
@@ -285,7 +289,8 @@ class StepTables:
     ) -> StepTables | None:
         """Pack a model's constant tables; None if ``chain`` is None or the friction is Python.
 
-        ``chain`` encodes the equivalent rigid body (None: no rigid body, or joints the chain
+        ``omega_v`` and ``prefilter_stages``: the estimator's pre-filter; ``chain`` encodes the
+        equivalent rigid body (None: no rigid body, or joints the chain
         does not encode); ``tip``: whether the step computes ``F`` (three joints and a tip).
         """
         if chain is None or terms.python_friction:
@@ -306,6 +311,7 @@ class StepTables:
         flags[G_MODE] = int(mode)
         flags[G_TIP_BODY] = max(chain.tip_body, 0)
         flags[G_OBSERVER] = int(observer)
+        flags[G_PREFILTER_STAGES] = int(prefilter_stages)
         float_arrays = [
             scalars, coupling, rotor, springs, offsets, linear_table, terms.effect_floats,
             chain.axis, chain.rotation, chain.translation, chain.mass, chain.com,

@@ -5,8 +5,9 @@ overhead (~1 µs) would dwarf the arithmetic. So a sample crosses into compiled 
 around pinocchio's calls (which stay outside, :class:`~teleop_force.estimation.estimator.
 ForceEstimator`):
 
-* :func:`prefilter_step`: checks the sample, runs the pre-filter ``L_v`` on the angles and
-  torques and the backward difference of the filtered angles, and writes pinocchio's inputs
+* :func:`prefilter_step`: checks the sample, runs the pre-filter on the angles and torques
+  (``L_v``, or the observer's own one or two stages) and the backward difference of the
+  filtered angles, and writes pinocchio's inputs
   (model-coordinate angles and velocities, the raw angles for the Jacobian);
 * :func:`finish_step`: the rigid-body terms from pinocchio's ``M``, ``C``, ``g``
   (:func:`rigid_terms_into`), the second filter ``L``, friction (Coulomb-viscous term tables,
@@ -67,8 +68,8 @@ STATE_HEAD = 3
 
 
 def state_size(n: int) -> int:
-    """Length of the estimator state: head, ``L_v`` (2 n), ``L`` (4 n), q, qd, observer (2 n)."""
-    return STATE_HEAD + 10 * n
+    """Length of the estimator state (head, filters, q, qd, observer; see prefilter_step)."""
+    return STATE_HEAD + 12 * n
 
 
 def output_size(n: int) -> int:
@@ -482,17 +483,20 @@ def prefilter_step(
     state: np.ndarray,
     sample: np.ndarray,
     omega_v: float,
+    stages: int,
     coupling: np.ndarray,
     q_model: np.ndarray,
     v_model: np.ndarray,
     q_jacobian: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
-    """Check one sample, run ``L_v`` and the backward difference; write pinocchio's inputs.
+    """Check one sample, run the pre-filter and the backward difference; write pinocchio's inputs.
 
     ``sample`` is ``[t, q (n), tau (n)]``; ``state`` (:func:`state_size`) holds
-    ``[has previous, previous t, first t, L_v state (2 n), L state (4 n), q (n), qd (n),
-    observer state (2 n)]``.
-    Writes ``q_model = T L_v(q)``, ``v_model = T qd`` and ``q_jacobian = T q`` (raw angles).
+    ``[has previous, previous t, first t, pre-filter (2 n), L state (4 n), q (n), qd (n),
+    observer state (2 n), first stage (2 n)]``. The pre-filter is ``stages`` (1 or 2)
+    first-order low-passes at ``omega_v`` [rad/s] in cascade (the first stage's state last,
+    so the filtered angles and torques stay where one stage keeps them).
+    Writes ``q_model = T q_v``, ``v_model = T qd`` and ``q_jacobian = T q`` (raw angles).
     Returns a status (``STEP_*``); on an error the state is untouched.
     """
     n = coupling.shape[1]
@@ -503,9 +507,11 @@ def prefilter_step(
     stage1 = state[STATE_HEAD : STATE_HEAD + 2 * n]
     q = state[STATE_HEAD + 6 * n : STATE_HEAD + 7 * n]
     qd = state[STATE_HEAD + 7 * n : STATE_HEAD + 8 * n]
+    inner = state[STATE_HEAD + 10 * n : STATE_HEAD + 12 * n]
     if state[0] == 0.0:
         for k in range(2 * n):
             stage1[k] = sample[1 + k]
+            inner[k] = sample[1 + k]
         for k in range(n):
             qd[k] = 0.0
         state[2] = t
@@ -516,8 +522,12 @@ def prefilter_step(
         a = math.exp(-omega_v * dt)
         b = 1.0 - a
         for k in range(2 * n):
+            value = sample[1 + k]
+            if stages == 2:
+                value = a * inner[k] + b * value
+                inner[k] = value
             previous = stage1[k]
-            stage1[k] = a * previous + b * sample[1 + k]
+            stage1[k] = a * previous + b * value
             if k < n:
                 qd[k] = (stage1[k] - previous) / dt
     for k in range(n):

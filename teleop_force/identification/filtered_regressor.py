@@ -48,11 +48,22 @@ EstimatorName = Literal["filter", "observer"]
 DEFAULT_ESTIMATOR = "observer"
 DEFAULT_OBSERVER_HZ = 24.0
 DEFAULT_STANDSTILL_BAND_RAD_S = 0.02
+#: The observer's own pre-filter by default: one first-order stage at ``L_v``'s 20 Hz (what the
+#: observer always ran on). The Omni's models get two stages at 40 Hz and a 40 Hz observer
+#: (:data:`~teleop_force.robots.registry.BUILTIN_DEFAULTS`, chosen on plant family one:
+#: docs/accuracy/low_speed.md): encoder quantization, not torque noise, bounds the bandwidth,
+#: and a second stage rolls its noise off where one stage passes it flat.
+DEFAULT_OBSERVER_PREFILTER_HZ = 20.0
+DEFAULT_OBSERVER_PREFILTER_STAGES = 1
+#: Stages the pre-filter may have.
+PREFILTER_STAGES = (1, 2)
 #: What a model file without these fields means: written before the observer existed, its
 #: estimates were the paper's filtered dynamics, without a dead band.
 LEGACY_ESTIMATOR: EstimatorName = "filter"
 LEGACY_OBSERVER_HZ = DEFAULT_CUTOFF_HZ
 LEGACY_STANDSTILL_BAND_RAD_S = 0.0
+#: A model file without the observer's pre-filter fields: its observer ran on ``L_v``.
+LEGACY_OBSERVER_PREFILTER_STAGES = 1
 
 
 @dataclass(frozen=True)
@@ -70,6 +81,9 @@ class FilterConfig:
         observer_hz: Bandwidth of the momentum observer [Hz] (``K = 2 pi observer_hz``).
         standstill_band_rad_s: Below this speed of every joint the friction torque ramps to 0
             (``max_j |qd_j| / band``); 0: no dead band.
+        observer_prefilter_hz: Cutoff of each stage of the observer's pre-filter of angles
+            and torques (the ``filter`` estimator runs on ``L_v``, as identification does).
+        observer_prefilter_stages: First-order stages of that pre-filter (1 or 2).
 
     """
 
@@ -80,6 +94,8 @@ class FilterConfig:
     estimator: str = DEFAULT_ESTIMATOR
     observer_hz: float = DEFAULT_OBSERVER_HZ
     standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
+    observer_prefilter_hz: float = DEFAULT_OBSERVER_PREFILTER_HZ
+    observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
 
     def __post_init__(self) -> None:
         if not self.cutoff_hz > 0:
@@ -102,11 +118,30 @@ class FilterConfig:
             raise ConfigurationError(
                 f"standstill_band_rad_s must be >= 0, got {self.standstill_band_rad_s}"
             )
+        if not (self.observer_prefilter_hz > 0 and math.isfinite(self.observer_prefilter_hz)):
+            raise ConfigurationError(
+                f"observer_prefilter_hz must be > 0, got {self.observer_prefilter_hz}"
+            )
+        if self.observer_prefilter_stages not in PREFILTER_STAGES:
+            raise ConfigurationError(
+                f"observer_prefilter_stages must be 1 or 2, got {self.observer_prefilter_stages}"
+            )
 
     @property
     def observer(self) -> bool:
         """Whether the momentum observer makes the estimates."""
         return self.estimator == "observer"
+
+    @property
+    def estimator_prefilter(self) -> tuple[float, int]:
+        """Cutoff [Hz] and stages of the pre-filter the estimator runs on angles and torques.
+
+        The observer's own (``observer_prefilter_hz``, ``observer_prefilter_stages``); for the
+        ``filter`` estimator ``L_v`` (``velocity_cutoff_hz``, one stage), as identified.
+        """
+        if self.observer:
+            return self.observer_prefilter_hz, self.observer_prefilter_stages
+        return self.velocity_cutoff_hz, 1
 
 
 class FilterEntry(Struct, forbid_unknown_fields=True):
@@ -120,6 +155,9 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
     estimator: EstimatorName = LEGACY_ESTIMATOR
     observer_hz: Finite = LEGACY_OBSERVER_HZ
     standstill_band_rad_s: Finite = LEGACY_STANDSTILL_BAND_RAD_S
+    # absent in files written before the observer had its own pre-filter: it ran on L_v
+    observer_prefilter_hz: Finite | None = None
+    observer_prefilter_stages: Annotated[int, Meta(ge=1, le=2)] = LEGACY_OBSERVER_PREFILTER_STAGES
 
     def __post_init__(self) -> None:
         self.config()  # FilterConfig's own range checks, named after this entry
@@ -131,6 +169,12 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
                 self.cutoff_hz, self.velocity_cutoff_hz, self.torque_lag_samples, self.warmup_s,
                 estimator=self.estimator, observer_hz=self.observer_hz,
                 standstill_band_rad_s=self.standstill_band_rad_s,
+                observer_prefilter_hz=(
+                    self.velocity_cutoff_hz
+                    if self.observer_prefilter_hz is None
+                    else self.observer_prefilter_hz
+                ),
+                observer_prefilter_stages=self.observer_prefilter_stages,
             )  # fmt: skip
         except ConfigurationError as exc:
             raise ModelFileError(str(exc)) from None

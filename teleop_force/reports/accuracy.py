@@ -120,12 +120,13 @@ class BatchEstimate:
 
 @dataclass(frozen=True)
 class CascadeReference:
-    """What the estimator's filters do to a force: ``L_v``, then ``L``, then the torque lag.
+    """What the estimator's filters do to a force: its pre-filter, then ``L``, then the lag.
 
-    ``L_v`` at ``velocity_cutoff_hz`` and ``L`` at ``cutoff_hz`` (at ``observer_hz`` for the
-    momentum observer, whose response to an external torque is first order) are first-order
-    low-passes (:func:`~teleop_force.lowpass.lowpass_batch`); the output is
-    ``torque_lag_samples`` late.
+    The pre-filter (:attr:`~teleop_force.identification.filtered_regressor.FilterConfig.
+    estimator_prefilter`: ``L_v``, or the observer's own stages) and ``L`` at ``cutoff_hz`` (at
+    ``observer_hz`` for the momentum observer, whose response to an external torque is first
+    order) are first-order low-passes (:func:`~teleop_force.lowpass.lowpass_batch`); the output
+    is ``torque_lag_samples`` late.
     """
 
     config: FilterConfig = field(default_factory=FilterConfig)
@@ -135,8 +136,12 @@ class CascadeReference:
         force = np.asarray(force_n, dtype=float)
         t = np.arange(force.shape[0]) * float(dt_s)
         config = self.config
-        second_hz = config.observer_hz if getattr(config, "observer", False) else config.cutoff_hz
-        out = lowpass_batch(lowpass_batch(force, t, config.velocity_cutoff_hz), t, second_hz)
+        second_hz = config.observer_hz if config.observer else config.cutoff_hz
+        prefilter_hz, stages = config.estimator_prefilter
+        out = force
+        for _ in range(stages):
+            out = lowpass_batch(out, t, prefilter_hz)
+        out = lowpass_batch(out, t, second_hz)
         lag = int(config.torque_lag_samples)
         if lag > 0:
             out = np.concatenate([np.repeat(out[:1], lag, axis=0), out[:-lag]])

@@ -157,6 +157,22 @@ def test_batch_equals_streaming_for_the_observer_and_the_band(palpation, kind, c
     np.testing.assert_array_equal(result.tau_motor_filtered_nm, default.tau_motor_filtered_nm)
 
 
+@pytest.mark.parametrize("stages", [1, 2])
+def test_batch_equals_streaming_for_either_observer_prefilter(palpation, stages) -> None:
+    """The observer's pre-filter, one stage or two in cascade: batch = streaming to 1e-9."""
+    t, q, tau = (x[:1500].copy() for x in palpation)
+    choice = {"estimator": "observer", "observer_prefilter_stages": stages}
+    model = _omni_model(_friction("coupled-cv"), EFFECTS, **choice)
+    starts = (700,)
+    t[700:] = t[700:] - t[700]
+    result = BatchEstimator(model).estimate(t, q, tau, np.array(starts))
+    _assert_same(result, _streamed(model, t, q, tau, starts))
+    other = {**choice, "observer_prefilter_stages": 3 - stages}
+    different = BatchEstimator(_omni_model(_friction("coupled-cv"), EFFECTS, **other))
+    changed = different.estimate(t, q, tau, np.array(starts))
+    assert not np.allclose(changed.tau_motor_filtered_nm, result.tau_motor_filtered_nm, atol=1e-6)
+
+
 @pytest.mark.parametrize("lag", [0, 1])
 def test_observer_batch_equals_streaming_for_both_lags(palpation, lag) -> None:
     t, q, tau = (x[:800] for x in palpation)

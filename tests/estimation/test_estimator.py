@@ -13,7 +13,7 @@ from teleop_force.estimation.estimator import (
     with_estimator,
     with_recorded_estimator,
 )
-from teleop_force.estimation.flags import add_estimator_arguments
+from teleop_force.estimation.flags import add_estimator_arguments, forwarded_estimator_arguments
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
@@ -126,9 +126,25 @@ def test_a_model_file_without_the_choice_reads_as_the_filter(tmp_path) -> None:
     assert loaded.filter_config.standstill_band_rad_s == 0.0
 
 
+def test_a_model_file_without_the_observer_prefilter_runs_the_observer_on_lv() -> None:
+    """Files from before the observer's own pre-filter: their observer ran on ``L_v``."""
+    model = with_estimator(_model(), "observer", 24.0, observer_prefilter_stages=2)
+    data = model.to_dict()
+    assert data["filter"]["observer_prefilter_stages"] == 2  # written by this version
+    for key in ("observer_prefilter_hz", "observer_prefilter_stages"):
+        del data["filter"][key]
+    config = DynamicModel.from_dict(data).filter_config
+    assert (config.observer_prefilter_hz, config.observer_prefilter_stages) == (
+        model.filter_config.velocity_cutoff_hz,
+        1,
+    )
+    assert config.estimator_prefilter == (config.velocity_cutoff_hz, 1)
+
+
 @pytest.mark.parametrize(
     ("key", "value"), [("estimator", "kalman"), ("observer_hz", 0.0), ("observer_hz", -1.0),
-                       ("standstill_band_rad_s", -0.01)],
+                       ("standstill_band_rad_s", -0.01), ("observer_prefilter_hz", 0.0),
+                       ("observer_prefilter_stages", 3)],
 )  # fmt: skip
 def test_a_bad_choice_in_the_model_file_is_named(key, value) -> None:
     data = _model().to_dict()
@@ -159,6 +175,13 @@ def test_recording_metadata_names_the_estimator_a_replay_runs() -> None:
     assert with_recorded_estimator(old, {"model": "m.json"}) is old  # older recordings
     with pytest.raises(ConfigurationError, match="observer_hz"):
         with_recorded_estimator(old, {"estimator": "observer", "observer_hz": "fast"})
+    # recorded before the observer had its own pre-filter: it ran on L_v, one stage
+    two_stages = with_estimator(_model(), "observer", observer_prefilter_stages=2)
+    before = {k: v for k, v in metadata.items() if "prefilter" not in k}
+    replayed = with_recorded_estimator(two_stages, before).filter_config
+    assert replayed.estimator_prefilter == (replayed.velocity_cutoff_hz, 1)
+    with pytest.raises(ConfigurationError, match="observer_prefilter_stages"):
+        with_recorded_estimator(old, {**metadata, "observer_prefilter_stages": "3"})
 
 
 def test_estimator_flags_override_the_model() -> None:
@@ -168,6 +191,25 @@ def test_estimator_flags_override_the_model() -> None:
     assert estimator_from_args(model, parser.parse_args([])) is model
     args = parser.parse_args(["--estimator", "observer", "--observer-hz", "16"])
     chosen = estimator_from_args(model, args)
+    prefilter = parser.parse_args(
+        ["--estimator", "observer", "--observer-prefilter-hz", "30", "--observer-prefilter-stages",
+         "1"]
+    )  # fmt: skip
+    assert estimator_from_args(model, prefilter).filter_config.estimator_prefilter == (30.0, 1)
     assert (chosen.filter_config.estimator, chosen.filter_config.observer_hz) == ("observer", 16)
     with pytest.raises(SystemExit):
         parser.parse_args(["--estimator", "kalman"])
+
+
+def test_estimator_flags_forwarded_to_a_child_parse_back_the_same() -> None:
+    """The demo hands its estimator flags to the service's command line."""
+    parser = argparse.ArgumentParser()
+    add_estimator_arguments(parser)
+    assert forwarded_estimator_arguments(parser.parse_args([])) == ()
+    given = parser.parse_args(
+        ["--estimator", "observer", "--observer-hz", "16.5", "--observer-prefilter-hz", "30",
+         "--observer-prefilter-stages", "2"]
+    )  # fmt: skip
+    words = forwarded_estimator_arguments(given)
+    assert "--observer-prefilter-stages" in words
+    assert parser.parse_args(list(words)) == given

@@ -45,7 +45,10 @@ def test_free_motion_gives_no_external_torque() -> None:
 def test_step_response_is_first_order_with_the_bandwidth(observer_hz) -> None:
     """At rest, a step of the external torque: ``r = E (1 - exp(-t K))``, ``K = 2 pi hz``."""
     # a pre-filter far above the observer passes the step unchanged (a = exp(-2 pi 100))
-    config = FilterConfig(velocity_cutoff_hz=1e5, estimator="observer", observer_hz=observer_hz)
+    config = FilterConfig(
+        velocity_cutoff_hz=1e5, estimator="observer", observer_hz=observer_hz,
+        observer_prefilter_hz=1e5,
+    )  # fmt: skip
     model = _true_model(config)
     robot = Robot(model.description())
     q = np.array([0.1, 0.7, 0.3])

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 from pathlib import Path
 
@@ -53,9 +54,16 @@ def test_cascade_reference_lags_a_step() -> None:
     assert out[100, 2] == 0.0  # one sample of torque lag
     assert 0.0 < out[150, 2] < 0.95 and out[-1, 2] > 0.99
     faster = CascadeReference(FilterConfig(estimator="filter", cutoff_hz=30.0))(force, 1e-3)
-    observer = CascadeReference(FilterConfig(estimator="observer", observer_hz=30.0))(force, 1e-3)
+    on_lv = FilterConfig(
+        estimator="observer", observer_hz=30.0, observer_prefilter_hz=20.0,
+        observer_prefilter_stages=1,
+    )  # fmt: skip
+    observer = CascadeReference(on_lv)(force, 1e-3)
     np.testing.assert_allclose(observer, faster)  # both first order at 30 Hz after L_v
     assert faster[150, 2] > out[150, 2]
+    # the observer's own pre-filter: a second stage at the same cutoff lags more
+    two = CascadeReference(dataclasses.replace(on_lv, observer_prefilter_stages=2))(force, 1e-3)
+    assert two[110, 2] < observer[110, 2] and two[-1, 2] > 0.99
 
 
 def test_batch_estimate_takes_overrides() -> None:
