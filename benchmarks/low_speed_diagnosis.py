@@ -1,6 +1,10 @@
 """Where the held-out contact-force error lives, and what a better friction could still gain.
 
     uv run python benchmarks/low_speed_diagnosis.py [--seeds 1 2 3] [--identify-protocol ...]
+        [--observer-hz HZ --observer-prefilter-hz HZ --observer-prefilter-stages N]
+
+The estimator flags (:mod:`teleop_force.estimation.flags`) replace the identified model's
+estimator, as ``teleop-force accuracy`` takes them.
 
 On plant family one (the tuning family of issue #19; family two is held out and is not
 diagnosed here), for each seed: identify the Omni's default model on 120 s of free motion
@@ -41,6 +45,8 @@ from teleop_force.estimation.batch import (
     _prefilter,
     _start_mask,
 )
+from teleop_force.estimation.estimator import estimator_from_args
+from teleop_force.estimation.flags import add_estimator_arguments
 from teleop_force.friction.terms import standstill_factors
 from teleop_force.reports.accuracy import (
     DEFAULT_IDENTIFY_PROTOCOL,
@@ -80,6 +86,7 @@ def main() -> None:
     """Print the diagnosis of every seed, then the friction variants' mean figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
+    add_estimator_arguments(parser)
     parser.add_argument(
         "--identify-protocol", choices=list(IDENTIFY_PROTOCOLS), default=DEFAULT_IDENTIFY_PROTOCOL
     )
@@ -88,6 +95,7 @@ def main() -> None:
     table: dict[str, list[dict[str, float]]] = {}
     for seed in args.seeds:
         model, ident = identify_free_motion(family, seed, protocol=args.identify_protocol)
+        model = estimator_from_args(model, args)
         test = floor_touch_protocol(
             60.0, seed + TEST_SEED_OFFSET, family=family, plant_config=plant_config(family, seed)
         )
@@ -162,7 +170,7 @@ def main() -> None:
         fallback = model.friction.fallback
         true_friction = test.friction
         variants = {
-            "model (the default estimate)": used,
+            "the model's friction (the estimate itself)": used,
             "coupled-CV fallback alone": fallback.torque(qd)
             * standstill_factors(qd, band)[:, None],
             "true friction at the estimated velocity": (

@@ -169,7 +169,7 @@ def estimator_metadata(model: DynamicModel) -> dict[str, str]:
         "estimator": config.estimator,
         "observer_hz": repr(float(config.observer_hz)),
         "standstill_band_rad_s": repr(float(config.standstill_band_rad_s)),
-        "observer_prefilter_hz": repr(float(config.observer_prefilter_hz)),
+        "observer_prefilter_hz": repr(float(config.observer_prefilter_cutoff_hz)),
         "observer_prefilter_stages": str(int(config.observer_prefilter_stages)),
     }
 

@@ -48,12 +48,11 @@ EstimatorName = Literal["filter", "observer"]
 DEFAULT_ESTIMATOR = "observer"
 DEFAULT_OBSERVER_HZ = 24.0
 DEFAULT_STANDSTILL_BAND_RAD_S = 0.02
-#: The observer's own pre-filter by default: one first-order stage at ``L_v``'s 20 Hz (what the
-#: observer always ran on). The Omni's models get two stages at 40 Hz and a 40 Hz observer
-#: (:data:`~teleop_force.robots.registry.BUILTIN_DEFAULTS`, chosen on plant family one:
-#: docs/accuracy/low_speed.md): encoder quantization, not torque noise, bounds the bandwidth,
-#: and a second stage rolls its noise off where one stage passes it flat.
-DEFAULT_OBSERVER_PREFILTER_HZ = 20.0
+#: The observer's own pre-filter by default: one first-order stage at ``L_v``'s cutoff, what
+#: the observer always ran on (``observer_prefilter_hz`` None follows ``velocity_cutoff_hz``).
+#: Two stages roll off the encoder count's noise that one stage passes flat, and buy a wider
+#: band: better on plant family one, but not the default: with them the residual watch misses
+#: a drifting friction it caught before (docs/accuracy/low_speed.md).
 DEFAULT_OBSERVER_PREFILTER_STAGES = 1
 #: Stages the pre-filter may have.
 PREFILTER_STAGES = (1, 2)
@@ -82,7 +81,8 @@ class FilterConfig:
         standstill_band_rad_s: Below this speed of every joint the friction torque ramps to 0
             (``max_j |qd_j| / band``); 0: no dead band.
         observer_prefilter_hz: Cutoff of each stage of the observer's pre-filter of angles
-            and torques (the ``filter`` estimator runs on ``L_v``, as identification does).
+            and torques; None: ``velocity_cutoff_hz`` (the ``filter`` estimator always runs on
+            ``L_v``, as identification does).
         observer_prefilter_stages: First-order stages of that pre-filter (1 or 2).
 
     """
@@ -94,7 +94,7 @@ class FilterConfig:
     estimator: str = DEFAULT_ESTIMATOR
     observer_hz: float = DEFAULT_OBSERVER_HZ
     standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
-    observer_prefilter_hz: float = DEFAULT_OBSERVER_PREFILTER_HZ
+    observer_prefilter_hz: float | None = None
     observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
 
     def __post_init__(self) -> None:
@@ -118,10 +118,9 @@ class FilterConfig:
             raise ConfigurationError(
                 f"standstill_band_rad_s must be >= 0, got {self.standstill_band_rad_s}"
             )
-        if not (self.observer_prefilter_hz > 0 and math.isfinite(self.observer_prefilter_hz)):
-            raise ConfigurationError(
-                f"observer_prefilter_hz must be > 0, got {self.observer_prefilter_hz}"
-            )
+        prefilter_hz = self.observer_prefilter_hz
+        if prefilter_hz is not None and not (prefilter_hz > 0 and math.isfinite(prefilter_hz)):
+            raise ConfigurationError(f"observer_prefilter_hz must be > 0, got {prefilter_hz}")
         if self.observer_prefilter_stages not in PREFILTER_STAGES:
             raise ConfigurationError(
                 f"observer_prefilter_stages must be 1 or 2, got {self.observer_prefilter_stages}"
@@ -133,14 +132,21 @@ class FilterConfig:
         return self.estimator == "observer"
 
     @property
+    def observer_prefilter_cutoff_hz(self) -> float:
+        """Cutoff [Hz] of each stage of the observer's pre-filter (``L_v``'s when not set)."""
+        if self.observer_prefilter_hz is None:
+            return self.velocity_cutoff_hz
+        return self.observer_prefilter_hz
+
+    @property
     def estimator_prefilter(self) -> tuple[float, int]:
         """Cutoff [Hz] and stages of the pre-filter the estimator runs on angles and torques.
 
-        The observer's own (``observer_prefilter_hz``, ``observer_prefilter_stages``); for the
-        ``filter`` estimator ``L_v`` (``velocity_cutoff_hz``, one stage), as identified.
+        The observer's own (:attr:`observer_prefilter_cutoff_hz`, ``observer_prefilter_stages``);
+        for the ``filter`` estimator ``L_v`` (``velocity_cutoff_hz``, one stage), as identified.
         """
         if self.observer:
-            return self.observer_prefilter_hz, self.observer_prefilter_stages
+            return self.observer_prefilter_cutoff_hz, self.observer_prefilter_stages
         return self.velocity_cutoff_hz, 1
 
 
@@ -169,11 +175,7 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
                 self.cutoff_hz, self.velocity_cutoff_hz, self.torque_lag_samples, self.warmup_s,
                 estimator=self.estimator, observer_hz=self.observer_hz,
                 standstill_band_rad_s=self.standstill_band_rad_s,
-                observer_prefilter_hz=(
-                    self.velocity_cutoff_hz
-                    if self.observer_prefilter_hz is None
-                    else self.observer_prefilter_hz
-                ),
+                observer_prefilter_hz=self.observer_prefilter_hz,
                 observer_prefilter_stages=self.observer_prefilter_stages,
             )  # fmt: skip
         except ConfigurationError as exc:

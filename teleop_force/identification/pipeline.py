@@ -36,7 +36,6 @@ from teleop_force.identification.rigid_body_fit import RigidBodyFitOptions, fit_
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.description import RobotDescription
-from teleop_force.robots.registry import robot_defaults
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,11 +108,9 @@ def identify_model(
     ``offsets``: fit a constant torque per joint with the friction (the data authors'
     Coulomb + viscous + offset); None fits them only without rigid-body terms. A
     ``friction_kind`` given by its name is parsed (:class:`ConfigurationError` if unknown).
-    ``config`` None: the robot's (:meth:`~teleop_force.robots.registry.RobotDefaults.
-    filter_config`, the library's defaults with the robot's estimator).
     """
     friction_kind = FrictionKind.parse(friction_kind)
-    config = config or robot_defaults(description.name).filter_config()
+    config = config or FilterConfig()
     rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
     stage_one = stage_one_friction(friction_kind, description)

@@ -69,7 +69,6 @@ from teleop_force.residual.scoring import (
     held_out_gain,
 )
 from teleop_force.robots.description import RobotDescription
-from teleop_force.robots.registry import robot_defaults
 
 __all__ = ["trace_residual"]
 
@@ -208,7 +207,7 @@ def trace_residual(
 ) -> ResidualReport:
     """Fit, find what the model lacks on held-out data, add it, refit, report before and after."""
     options = (options or ResidualOptions()).for_robot(description.name, description.has_rigid_body)
-    config = config or robot_defaults(description.name).filter_config()
+    config = config or FilterConfig()
     offsets = bool(options.offsets)
     friction = options.friction or FrictionKind.WN
     baseline = fit_baseline(recordings, description, friction, offsets, config)

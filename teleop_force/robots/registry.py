@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,9 +11,6 @@ from teleop_force.robots.description import RobotDescription
 from teleop_force.robots.kinds import BUILTIN_ROBOTS, RobotKind
 from teleop_force.robots.omni import omni_description
 
-if TYPE_CHECKING:
-    from teleop_force.identification.filtered_regressor import FilterConfig
-
 
 @dataclass(frozen=True)
 class RobotDefaults:
@@ -22,34 +18,10 @@ class RobotDefaults:
 
     ``friction`` is a friction kind's name (``teleop_force.friction.kinds.FrictionKind``);
     ``offsets``: fit a constant torque per joint (None: only without a rigid body).
-    ``observer_hz``, ``observer_prefilter_hz``, ``observer_prefilter_stages``: the estimator
-    its models carry (None: the library's :class:`FilterConfig` default).
     """
 
     friction: str
     offsets: bool | None = None
-    observer_hz: float | None = None
-    observer_prefilter_hz: float | None = None
-    observer_prefilter_stages: int | None = None
-
-    def filter_config(self) -> FilterConfig:
-        """Return the filter configuration ``identify`` gives this robot's models."""
-        from teleop_force.identification.filtered_regressor import FilterConfig
-
-        config = FilterConfig()
-        return FilterConfig(
-            observer_hz=config.observer_hz if self.observer_hz is None else self.observer_hz,
-            observer_prefilter_hz=(
-                config.observer_prefilter_hz
-                if self.observer_prefilter_hz is None
-                else self.observer_prefilter_hz
-            ),
-            observer_prefilter_stages=(
-                config.observer_prefilter_stages
-                if self.observer_prefilter_stages is None
-                else self.observer_prefilter_stages
-            ),
-        )
 
 
 #: Per built-in robot (docs/cli.md). The MTM: friction in model coordinates with offsets
@@ -57,13 +29,8 @@ class RobotDefaults:
 #: 24.5 / 29.3 % with the wavelet network, docs/robots.md); the test stand: CV (its flights
 #: are too short to train a network on: ``TeststandOptions`` in estimation/teststand.py);
 #: the Omni, ``none`` and description files: the wavelet network (the library's default).
-#: The Omni's estimator: the observer at 40 Hz on two pre-filter stages at 40 Hz, chosen by the
-#: held-out contact-force error on simulated plant family one (docs/accuracy/low_speed.md);
-#: the other robots have no contact-force data to choose on and keep the library's.
 BUILTIN_DEFAULTS: dict[RobotKind, RobotDefaults] = {
-    RobotKind.OMNI: RobotDefaults(
-        "wn", observer_hz=40.0, observer_prefilter_hz=40.0, observer_prefilter_stages=2
-    ),
+    RobotKind.OMNI: RobotDefaults("wn"),
     RobotKind.NONE: RobotDefaults("wn"),
     RobotKind.DVRK_MTM: RobotDefaults("model-cv", offsets=True),
     RobotKind.TESTSTAND: RobotDefaults("cv"),

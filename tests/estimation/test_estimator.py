@@ -1,4 +1,5 @@
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -134,11 +135,10 @@ def test_a_model_file_without_the_observer_prefilter_runs_the_observer_on_lv() -
     for key in ("observer_prefilter_hz", "observer_prefilter_stages"):
         del data["filter"][key]
     config = DynamicModel.from_dict(data).filter_config
-    assert (config.observer_prefilter_hz, config.observer_prefilter_stages) == (
-        model.filter_config.velocity_cutoff_hz,
-        1,
-    )
-    assert config.estimator_prefilter == (config.velocity_cutoff_hz, 1)
+    assert config.observer_prefilter_hz is None  # follows L_v
+    assert config.estimator_prefilter == (model.filter_config.velocity_cutoff_hz, 1)
+    faster = dataclasses.replace(config, velocity_cutoff_hz=35.0)
+    assert faster.estimator_prefilter == (35.0, 1)
 
 
 @pytest.mark.parametrize(
@@ -169,8 +169,10 @@ def test_recording_metadata_names_the_estimator_a_replay_runs() -> None:
     model = with_estimator(_model(), "observer", 20.0, 0.005)
     metadata = {"model": "m.json", **estimator_metadata(model)}
     assert all(isinstance(v, str) for v in metadata.values())
-    replayed = with_recorded_estimator(_model(), metadata)
-    assert replayed.filter_config == model.filter_config
+    replayed = with_recorded_estimator(_model(), metadata).filter_config
+    # the metadata holds the pre-filter's effective cutoff (L_v's here, which the model follows)
+    assert replayed.estimator_prefilter == model.filter_config.estimator_prefilter
+    assert dataclasses.replace(replayed, observer_prefilter_hz=None) == model.filter_config
     old = _model()
     assert with_recorded_estimator(old, {"model": "m.json"}) is old  # older recordings
     with pytest.raises(ConfigurationError, match="observer_hz"):
