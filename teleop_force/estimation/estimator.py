@@ -16,7 +16,7 @@ generalised-momentum observer (:mod:`teleop_force.estimation.momentum_observer`)
 ``p = M(q_v) qd``, ``beta``, friction and the pre-filtered torque, and
 ``tau_model_L = tau_L - tau_ext``; the observer's pre-filter is its own
 (:attr:`~teleop_force.identification.filtered_regressor.FilterConfig.estimator_prefilter`:
-one or two first-order stages in cascade, ``L_v`` for models written before it).
+one or two first-order stages in cascade; by default one at ``L_v``'s cutoff, as before it).
 Below the model's standstill band every friction torque is ramped to 0
 (:func:`~teleop_force.friction.terms.standstill_factor`). The filter form is, sample for
 sample, the batch computation of
