@@ -17,7 +17,11 @@ from typing import Any, TypeAlias
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, TeleopForceError
-from teleop_force.estimation.flags import add_estimator_arguments, forwarded_estimator_arguments
+from teleop_force.estimation.flags import (
+    add_estimator_arguments,
+    forwarded_estimator_arguments,
+    given_estimator_flags,
+)
 from teleop_force.transport.session import add_zenoh_arguments
 
 EXIT_OK = 0
@@ -472,12 +476,7 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     options = AccuracyOptions(
         args.identify_duration, args.test_duration, args.identify_protocol, args.friction
     )
-    overrides: dict[str, object] = {}
-    if args.estimator is not None:
-        overrides["estimator"] = args.estimator
-    for name in ("observer_hz", "observer_prefilter_hz", "observer_prefilter_stages"):
-        if getattr(args, name) is not None:
-            overrides[name] = getattr(args, name)
+    overrides: dict[str, object] = dict(given_estimator_flags(args))
     results = run_accuracy(
         args.family, args.seeds, estimate=BatchEstimate(overrides), options=options, log=_log
     )

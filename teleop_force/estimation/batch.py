@@ -50,7 +50,7 @@ from teleop_force.estimation.estimator import (
     TRAINED_GROUND_WEIGHT,
     equivalent_rigid_body,
 )
-from teleop_force.estimation.kernels import ModelTerms, add_model_terms
+from teleop_force.estimation.kernels import ModelTerms, add_model_terms, first_prefilter_stage
 from teleop_force.estimation.momentum_observer import observer_update_into
 from teleop_force.estimation.rigid_chain import (
     ChainTables,
@@ -460,19 +460,13 @@ def _prefilter(
         a = math.exp(-omega_v * step)
         b = 1.0 - a
         for i in range(n):
-            value = q[k, i]
-            if stages == 2:
-                value = a * inner[i] + b * value
-                inner[i] = value
+            value = first_prefilter_stage(q[k, i], inner, i, a, b, stages)
             previous = q_v[k - 1, i]
             filtered = a * previous + b * value
             q_v[k, i] = filtered
             qd[k, i] = (filtered - previous) / step
         for i in range(n):
-            value = tau[k, i]
-            if stages == 2:
-                value = a * inner[n + i] + b * value
-                inner[n + i] = value
+            value = first_prefilter_stage(tau[k, i], inner, n + i, a, b, stages)
             tau_v[k, i] = a * tau_v[k - 1, i] + b * value
     return q_v, tau_v, qd, dt
 

@@ -39,7 +39,8 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-#: The estimator flags and their ``argparse`` destinations, in the order they are forwarded.
+#: The estimator flags and their ``argparse`` destinations (the ``FilterConfig`` fields they
+#: set), in the order they are forwarded.
 _FLAGS = (
     ("--estimator", "estimator"),
     ("--observer-hz", "observer_hz"),
@@ -48,11 +49,18 @@ _FLAGS = (
 )
 
 
+def given_estimator_flags(args: argparse.Namespace) -> dict[str, str | float | int]:
+    """Return the estimator flags ``args`` holds: ``FilterConfig`` field name -> value."""
+    values = {name: getattr(args, name) for _, name in _FLAGS}
+    return {name: value for name, value in values.items() if value is not None}
+
+
 def forwarded_estimator_arguments(args: argparse.Namespace) -> tuple[str, ...]:
     """Return the estimator flags ``args`` holds, as words for a child's command line."""
+    given = given_estimator_flags(args)
     words: list[str] = []
     for flag, name in _FLAGS:
-        value = getattr(args, name)
-        if value is not None:
+        if name in given:
+            value = given[name]
             words += [flag, value if isinstance(value, str) else repr(value)]
     return tuple(words)

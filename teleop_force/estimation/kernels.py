@@ -478,6 +478,22 @@ def tip_force_into(
 # -- the step, in two halves around pinocchio -------------------------------------------------
 
 
+@njit_cached()
+def first_prefilter_stage(
+    value: float, inner: np.ndarray, k: int, a: float, b: float, stages: int
+) -> float:  # pragma: no cover - compiled
+    """Return the input of the pre-filter's last stage: ``value``, or its first of two stages.
+
+    With ``stages`` 2, ``inner[k]`` (the first stage's state) becomes ``a inner[k] + b value``
+    and is returned; with 1 stage ``value`` passes as is. The streaming step and the batch loop
+    (:func:`~teleop_force.estimation.batch._prefilter`) both call it.
+    """
+    if stages == 2:
+        value = a * inner[k] + b * value
+        inner[k] = value
+    return value
+
+
 @njit_cached(nogil=False)
 def prefilter_step(
     state: np.ndarray,
@@ -522,10 +538,7 @@ def prefilter_step(
         a = math.exp(-omega_v * dt)
         b = 1.0 - a
         for k in range(2 * n):
-            value = sample[1 + k]
-            if stages == 2:
-                value = a * inner[k] + b * value
-                inner[k] = value
+            value = first_prefilter_stage(sample[1 + k], inner, k, a, b, stages)
             previous = stage1[k]
             stage1[k] = a * previous + b * value
             if k < n:

@@ -14,7 +14,11 @@ from teleop_force.estimation.estimator import (
     with_estimator,
     with_recorded_estimator,
 )
-from teleop_force.estimation.flags import add_estimator_arguments, forwarded_estimator_arguments
+from teleop_force.estimation.flags import (
+    add_estimator_arguments,
+    forwarded_estimator_arguments,
+    given_estimator_flags,
+)
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, filter_signals
@@ -212,6 +216,12 @@ def test_estimator_flags_forwarded_to_a_child_parse_back_the_same() -> None:
         ["--estimator", "observer", "--observer-hz", "16.5", "--observer-prefilter-hz", "30",
          "--observer-prefilter-stages", "2"]
     )  # fmt: skip
+    assert given_estimator_flags(given) == {
+        "estimator": "observer",
+        "observer_hz": 16.5,
+        "observer_prefilter_hz": 30.0,
+        "observer_prefilter_stages": 2,
+    }
     words = forwarded_estimator_arguments(given)
     assert "--observer-prefilter-stages" in words
     assert parser.parse_args(list(words)) == given
