@@ -51,7 +51,8 @@ def _load_recordings(
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from teleop_force.friction.kinds import FrictionKind
-    from teleop_force.identification.pipeline import WaveletOptions, identify_model
+    from teleop_force.identification.pipeline import identify_model
+    from teleop_force.identification.prepared import wavelet_options_for
     from teleop_force.robots.kinds import RobotKind
     from teleop_force.robots.registry import resolve_robot, robot_defaults
 
@@ -69,7 +70,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         recordings,
         description,
         friction,
-        wavelet=WaveletOptions(method=args.wn_fit),
+        wavelet=wavelet_options_for(args.wn_structure, args.wn_fit),
         offsets=offsets,
     )
     model.save(args.output)
@@ -474,7 +475,11 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     )
 
     options = AccuracyOptions(
-        args.identify_duration, args.test_duration, args.identify_protocol, args.friction
+        args.identify_duration,
+        args.test_duration,
+        args.identify_protocol,
+        args.friction,
+        args.wn_structure,
     )
     overrides: dict[str, object] = dict(given_estimator_flags(args))
     results = run_accuracy(
@@ -568,6 +573,7 @@ def _add_identify(subparsers: _Subparsers) -> None:
         help="train the wavelet network by batch ridge least squares (default, as the"
         " library) or by the paper's Lyapunov adaptation",
     )
+    _add_wn_structure(p)
     _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
@@ -791,6 +797,19 @@ def _add_experiments(subparsers: _Subparsers) -> None:
     p.set_defaults(run=_cmd_experiments)
 
 
+def _add_wn_structure(p: argparse.ArgumentParser) -> None:
+    from teleop_force.friction.kinds import WN_STRUCTURES
+
+    p.add_argument(
+        "--wn-structure",
+        choices=WN_STRUCTURES,
+        default=WN_STRUCTURES[0],
+        help="on-cv (default): the wavelet network is trained on what the coupled CV leaves and"
+        " adds to it; alone: the paper's network, the whole friction, blended with the coupled"
+        " CV off its trained ground",
+    )
+
+
 def _add_accuracy(subparsers: _Subparsers) -> None:
     from teleop_force.friction.kinds import FrictionKind
 
@@ -820,6 +839,7 @@ def _add_accuracy(subparsers: _Subparsers) -> None:
         default=None,
         help="friction to identify (default: the Omni's, as `teleop-force identify` fits it)",
     )
+    _add_wn_structure(p)
     add_estimator_arguments(p)
     _add_output(p, "folder for accuracy.md and accuracy.json", required=True)
     _add_json_flag(p, "print the figures as one JSON object")

@@ -46,6 +46,7 @@ from teleop_force.friction.terms import (
     linear_friction_torque_into,
     standstill_scale_into,
     term_velocity,
+    trust_add,
     trust_blend,
     wavelet_network_torque_into,
 )
@@ -55,7 +56,7 @@ from teleop_force.identification.effect_terms import add_effects_torque_into
 from teleop_force.identification.effects import effects_table
 
 #: Friction modes of :func:`add_model_terms`.
-FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK = 0, 1, 2
+FRICTION_NONE, FRICTION_LINEAR, FRICTION_NETWORK, FRICTION_NETWORK_ON_FALLBACK = 0, 1, 2, 3
 #: What :func:`finish_step`'s ``rigid`` says: no rigid body, pinocchio's ``M``, ``C``, ``g`` in
 #: ``mass``, ``coriolis``, ``gravity``, or (the fused step) ``mass`` rows ``[M v, g - C^T v]``
 #: already computed in model coordinates.
@@ -109,9 +110,10 @@ def add_model_terms(
 
     ``mode``: no friction, a Coulomb-viscous term table (``linear_table`` = ``[rows | reach]``,
     (T, 2 n)), or a wavelet table blended with its fallback term table by the trust of the
-    coverage grids (``grid_ints`` with no rows: trust 1). The friction is ramped to 0 below
-    the standstill band (:func:`~teleop_force.friction.terms.standstill_factor`; 0: off).
-    ``network`` (n) and ``work`` are scratch.
+    coverage grids (``grid_ints`` with no rows: trust 1), or a wavelet table added to its
+    fallback times that trust (``FRICTION_NETWORK_ON_FALLBACK``). The friction is ramped to 0
+    below the standstill band (:func:`~teleop_force.friction.terms.standstill_factor`; 0:
+    off). ``network`` (n) and ``work`` are scratch.
     """
     n = q.size
     for j in range(n):
@@ -121,7 +123,7 @@ def add_model_terms(
     reach = linear_table[:, n:]
     if mode == FRICTION_LINEAR:
         linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
-    elif mode == FRICTION_NETWORK:
+    elif mode >= FRICTION_NETWORK:  # a network, blended with or added to its fallback
         for j in range(n):
             network[j] = 0.0
         wavelet_network_torque_into(
@@ -130,8 +132,12 @@ def add_model_terms(
         linear_friction_torque_into(qd, rows, reach, linear_parameters, other)  # the fallback
         if grid_ints.shape[0] > 0:
             coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
-        for j in range(n):
-            other[j] = trust_blend(weight[j], network[j], other[j])
+        if mode == FRICTION_NETWORK_ON_FALLBACK:
+            for j in range(n):
+                other[j] = trust_add(weight[j], network[j], other[j])
+        else:
+            for j in range(n):
+                other[j] = trust_blend(weight[j], network[j], other[j])
     standstill_scale_into(qd, standstill_band_rad_s, other)
     for j in range(n):
         other[j] += offsets[j]
@@ -272,7 +278,8 @@ class ModelTerms:
                 self._psi = np.zeros(inputs.shape[0])
             self._versions = versions
             arguments = self._network_arguments = (
-                FRICTION_NETWORK, self.model.offsets_nm, self._fallback_table,
+                FRICTION_NETWORK_ON_FALLBACK if network.on_fallback else FRICTION_NETWORK,
+                self.model.offsets_nm, self._fallback_table,
                 self._fallback.parameters, inputs, wavelets, runs, self._psi, grid_ints,
                 grid_floats, values, self.effect_codes, self.effect_floats,
                 self.standstill_band_rad_s,

@@ -16,7 +16,8 @@ class FrictionKind(StrEnum):
     COUPLED_CV = "coupled-cv"
     #: Coulomb-viscous acting in model coordinates, through the robot's joint coupling.
     MODEL_CV = "model-cv"
-    #: Wavelet network (the paper's method), with a coupled-CV fallback off its trained ground.
+    #: Wavelet network (the paper's method) with a coupled CV, combined by its coverage trust
+    #: (:data:`WN_STRUCTURES`).
     WN = "wn"
 
     @classmethod
@@ -33,3 +34,8 @@ class FrictionKind(StrEnum):
 
 #: Every friction kind's name, in the order the CLI lists them.
 FRICTION_KINDS: tuple[str, ...] = tuple(kind.value for kind in FrictionKind)
+
+#: The wavelet network's structures by their command-line names (``--wn-structure``): ``on-cv``
+#: (the default) is trained on what the coupled CV leaves and adds to it, ``alone`` is the
+#: paper's network, the whole friction, blended with the coupled CV off its trained ground.
+WN_STRUCTURES: tuple[str, ...] = ("on-cv", "alone")

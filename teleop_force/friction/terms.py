@@ -387,14 +387,23 @@ def trust_blend(w: float, trained: float, fallback: float) -> float:  # pragma: 
 
 
 @njit_cached()
+def trust_add(w: float, trained: float, fallback: float) -> float:  # pragma: no cover
+    """Torque ``fallback + w trained`` of a network trained on what the fallback leaves."""
+    return fallback + w * trained
+
+
+@njit_cached()
 def trust_blend_values(
-    w: np.ndarray, trained: np.ndarray, fallback: np.ndarray
+    w: np.ndarray, trained: np.ndarray, fallback: np.ndarray, on_fallback: bool = False
 ) -> np.ndarray:  # pragma: no cover - compiled
-    """:func:`trust_blend` of every entry of three (N, n) arrays."""
+    """:func:`trust_blend` (or, ``on_fallback``, :func:`trust_add`) of three (N, n) arrays."""
     out = np.empty(w.shape)
     for k in range(w.shape[0]):
         for j in range(w.shape[1]):
-            out[k, j] = trust_blend(w[k, j], trained[k, j], fallback[k, j])
+            if on_fallback:
+                out[k, j] = trust_add(w[k, j], trained[k, j], fallback[k, j])
+            else:
+                out[k, j] = trust_blend(w[k, j], trained[k, j], fallback[k, j])
     return out
 
 

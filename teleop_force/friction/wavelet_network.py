@@ -30,8 +30,15 @@ Pool and active set (Section III-D):
   the 3^d (``n`` even) or 2^d (``n`` odd) coarser wavelets nearest to it.
 
 The model can also hold a fitted :class:`CoupledCoulombViscous` ``fallback`` and a
-:class:`CoverageMap`; :meth:`WaveletNetwork.blended_torque` blends the two by the coverage
-trust (the WN only where it was trained, the coupled CV model elsewhere).
+:class:`CoverageMap`; :meth:`WaveletNetwork.blended_torque` combines the two by the coverage
+trust ``w``:
+
+* ``on_fallback=False`` (the paper's network, the whole friction): ``w WN + (1 - w) CV``, the
+  WN only where it was trained, the coupled CV model elsewhere;
+* ``on_fallback=True`` (the identified Omni's default): ``CV + w WN``, the network trained on
+  what the coupled CV leaves. The CV keeps the Coulomb step at zero speed, which the smooth
+  wavelets can only round off, and the network adds the coupled remainder where it was
+  trained.
 """
 
 from __future__ import annotations
@@ -554,9 +561,12 @@ class WaveletNetworkEntry(Struct):
     edge_ring: bool = True
     fallback: CoupledCoulombViscous | None = None
     coverage: CoverageMap | None = None
+    on_fallback: bool = False
 
     def __post_init__(self) -> None:
         n = self.n_joints
+        if self.on_fallback and self.fallback is None:
+            raise ModelFileError("a network on its fallback needs the fallback", column="fallback")
         if len(self.joints) != n:
             raise ModelFileError(f"expected {n} joint networks", column="joints")
         for j, joint in enumerate(self.joints):
@@ -591,10 +601,13 @@ class WaveletNetwork(FrictionModel):
         edge_ring: bool = True,
         fallback: CoupledCoulombViscous | None = None,
         coverage: CoverageMap | None = None,
+        on_fallback: bool = False,
     ) -> None:
         """Create the networks with only the seed wavelets active (coefficients 0).
 
         ``coverage`` defaults to an empty :class:`CoverageMap` over the networks' regions.
+        ``on_fallback``: the network adds to its fallback instead of replacing it (module
+        docstring).
         """
         specs = tuple(specs)
         if len(specs) != n_joints:
@@ -608,6 +621,7 @@ class WaveletNetwork(FrictionModel):
         self._single: _SingleSampleTorque | None = None
         self._refresh_active()
         self.fallback = fallback
+        self._on_fallback = bool(on_fallback)
         if fallback is not None and fallback.n_joints != n_joints:
             raise ModelError("wn: fallback model has a different number of joints")
         if coverage is not None and coverage.n_joints != n_joints:
@@ -634,6 +648,11 @@ class WaveletNetwork(FrictionModel):
     def specs(self) -> tuple[WaveletJointSpec, ...]:
         """Per-joint network specifications."""
         return self.pool.specs
+
+    @property
+    def on_fallback(self) -> bool:
+        """Whether the network adds to its fallback (``CV + w WN``) instead of replacing it."""
+        return self._on_fallback
 
     @property
     def structure_version(self) -> int:
@@ -846,7 +865,8 @@ class WaveletNetwork(FrictionModel):
     def blended_torque(self, qd: np.ndarray) -> np.ndarray:
         """Coverage-aware estimate ``w WN(qd) + (1 - w) fallback(qd)`` per joint.
 
-        ``w`` is :meth:`coverage_weight`; needs a ``fallback`` model (raises ModelError).
+        With :attr:`on_fallback`, ``fallback(qd) + w WN(qd)``. ``w`` is
+        :meth:`coverage_weight`; needs a ``fallback`` model (raises ModelError).
         """
         if self.fallback is None:
             raise ModelError("wn: blended_torque needs a fitted coupled-CV fallback model")
@@ -858,6 +878,7 @@ class WaveletNetwork(FrictionModel):
             np.ascontiguousarray(w, dtype=float),
             np.ascontiguousarray(self.torque(batch), dtype=float),
             np.ascontiguousarray(self.fallback.torque(batch), dtype=float),
+            self.on_fallback,
         )
         return out[0] if single else out
 
@@ -883,6 +904,7 @@ class WaveletNetwork(FrictionModel):
             "joints": joints,
             "fallback": None if self.fallback is None else self.fallback.to_dict(),
             "coverage": None if self.coverage is None else self.coverage.to_dict(),
+            "on_fallback": self.on_fallback,
         }
 
     @classmethod
@@ -899,7 +921,7 @@ class WaveletNetwork(FrictionModel):
         try:
             net = cls(
                 entry.n_joints, specs, a0=entry.a0, b0=entry.b0, edge_ring=entry.edge_ring,
-                fallback=entry.fallback, coverage=entry.coverage,
+                fallback=entry.fallback, coverage=entry.coverage, on_fallback=entry.on_fallback,
             )  # fmt: skip
             if entry.coverage is None:
                 net.coverage = None

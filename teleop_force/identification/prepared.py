@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.friction.kinds import WN_STRUCTURES
 from teleop_force.identification.filtered_regressor import (
     FilterConfig,
     FilteredSignals,
@@ -26,6 +27,10 @@ class WaveletOptions:
 
     method: str = "batch"
     passes: int = 3
+    #: Train the network on what the stage-one coupled CV leaves and add it to that CV
+    #: (:attr:`~teleop_force.friction.wavelet_network.WaveletNetwork.on_fallback`); False: the
+    #: paper's network, the whole friction, blended with the CV off its trained ground.
+    on_fallback: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in ("adaptive", "batch"):
@@ -34,6 +39,15 @@ class WaveletOptions:
             )
         if self.passes < 1:
             raise ConfigurationError("passes must be >= 1")
+
+
+def wavelet_options_for(structure: str, method: str = "batch") -> WaveletOptions:
+    """Return the options of the network structure called ``structure`` (:data:`WN_STRUCTURES`)."""
+    if structure not in WN_STRUCTURES:
+        raise ConfigurationError(
+            f"wn structure must be one of {', '.join(WN_STRUCTURES)}, got {structure!r}"
+        )
+    return WaveletOptions(method=method, on_fallback=structure == "on-cv")
 
 
 @dataclass(frozen=True, eq=False)

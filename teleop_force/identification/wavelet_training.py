@@ -107,6 +107,9 @@ def train_wavelet_network(
 ) -> tuple[WaveletNetwork, dict[str, Any]]:
     """Return the trained network and figures (sizes reached, speed, fit error).
 
+    With ``options.on_fallback`` the network is trained on what ``fallback`` leaves (its
+    filtered torque is subtracted from the target like ``known_torque_l``) and adds to it.
+
     ``inertia_kgm2`` (diagonal of ``M`` at a typical pose) weights the momentum-coordinate
     prediction error so the paper's gains keep their meaning (its error is a velocity).
     ``known_torque_l`` (one ``(N, n)`` array per recording) is filtered torque already explained
@@ -136,9 +139,23 @@ def train_wavelet_network(
             untrained_density=UNTRAINED_CELL_S * rate_hz, trained_density=TRAINED_CELL_S * rate_hz
         ),
     )
-    network = WaveletNetwork(description.n_joints, specs, fallback=fallback, coverage=coverage)
-    details: dict[str, Any] = {"wn_method": options.method}
-    known = list(known_torque_l) if known_torque_l is not None else [0.0] * len(prepared)
+    network = WaveletNetwork(
+        description.n_joints,
+        specs,
+        fallback=fallback,
+        coverage=coverage,
+        on_fallback=options.on_fallback,
+    )
+    details: dict[str, Any] = {"wn_method": options.method, "wn_on_fallback": options.on_fallback}
+    known: list[Any] = list(known_torque_l) if known_torque_l is not None else [0.0] * len(prepared)
+    if options.on_fallback:
+        known = [
+            extra
+            + lowpass_batch(
+                fallback.torque(p.signals.qd_rad_s), p.signals.t_s, p.signals.config.cutoff_hz
+            )
+            for p, extra in zip(prepared, known, strict=True)
+        ]
     if options.method == "batch":
         t_all, qd_all, target_all = [], [], []
         t_offset = 0.0

@@ -47,10 +47,13 @@ from typing import Any
 import numpy as np
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.friction.kinds import FrictionKind
+from teleop_force.friction.base import FrictionModel
+from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind
+from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.pipeline import identify_model
+from teleop_force.identification.prepared import wavelet_options_for
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.lowpass import lowpass_batch
 from teleop_force.robots.kinds import RobotKind
@@ -158,6 +161,8 @@ class AccuracyOptions:
         identify_protocol: One of :data:`IDENTIFY_PROTOCOLS` (the free motion's kind).
         friction: Friction kind to identify (``None``: the Omni's default, as
             ``teleop-force identify`` fits it).
+        wn_structure: The wavelet network's structure (one of
+            :data:`~teleop_force.friction.kinds.WN_STRUCTURES`), as ``identify`` fits it.
 
     """
 
@@ -165,6 +170,7 @@ class AccuracyOptions:
     test_duration_s: float = 60.0
     identify_protocol: str = DEFAULT_IDENTIFY_PROTOCOL
     friction: str | None = None
+    wn_structure: str = WN_STRUCTURES[0]
 
     def __post_init__(self) -> None:
         for name in ("identify_duration_s", "test_duration_s"):
@@ -174,6 +180,7 @@ class AccuracyOptions:
         _identify_protocol(self.identify_protocol)
         if self.friction is not None:
             FrictionKind.parse(self.friction)
+        wavelet_options_for(self.wn_structure)
 
 
 @dataclass(frozen=True)
@@ -184,6 +191,7 @@ class SessionAccuracy:
     seed: int
     estimator: str
     friction: str
+    wn_structure: str | None
     identify_protocol: str
     contact_fraction: float
     rms_contact_force_n: float
@@ -204,6 +212,13 @@ class SessionAccuracy:
             key: (None if isinstance(value, float) and not math.isfinite(value) else value)
             for key, value in dataclasses.asdict(self).items()
         }
+
+
+def _wn_structure(friction: FrictionModel) -> str | None:
+    """Return the network's structure name (``None``: the friction is not a network)."""
+    if not isinstance(friction, WaveletNetwork):
+        return None
+    return WN_STRUCTURES[0] if friction.on_fallback else WN_STRUCTURES[1]
 
 
 def _rms_norm(x: np.ndarray) -> float:
@@ -259,11 +274,12 @@ def identify_free_motion(
     *,
     protocol: str = DEFAULT_IDENTIFY_PROTOCOL,
     friction: str | None = None,
+    wn_structure: str = WN_STRUCTURES[0],
 ) -> tuple[DynamicModel, SimulatedSession]:
     """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm.
 
     ``protocol``: one of :data:`IDENTIFY_PROTOCOLS`; ``friction``: a friction kind instead of
-    the Omni's default.
+    the Omni's default; ``wn_structure``: the network's (``--wn-structure``).
     """
     family = PlantFamily.parse(family)
     run = _identify_protocol(protocol)
@@ -273,6 +289,7 @@ def identify_free_motion(
         [_recording(session)],
         omni_description(),
         FrictionKind.parse(friction if friction is not None else defaults.friction),
+        wavelet=wavelet_options_for(wn_structure),
         offsets=defaults.offsets,
     )
     return model, session
@@ -322,6 +339,7 @@ def session_accuracy(
             options.identify_duration_s,
             protocol=options.identify_protocol,
             friction=options.friction,
+            wn_structure=options.wn_structure,
         )
     identify_wall = perf_counter() - started
     log(f"family {family} seed {seed}: identified ({model.friction.kind}) in {identify_wall:.1f} s")
@@ -346,6 +364,7 @@ def session_accuracy(
         seed=int(seed),
         estimator=describe() if callable(describe) else getattr(estimator, "__name__", "custom"),
         friction=str(model.friction.kind),
+        wn_structure=_wn_structure(model.friction),
         identify_protocol=options.identify_protocol,
         identify_wall_s=round(identify_wall, 1),
         simulate_wall_s=round(simulate_wall, 1),
@@ -424,7 +443,7 @@ def write_accuracy_report(
     options = options or AccuracyOptions()
     folder.mkdir(parents=True, exist_ok=True)
     estimators = sorted({r.estimator for r in results})
-    frictions = sorted({r.friction for r in results})
+    frictions = sorted({" ".join(filter(None, (r.friction, r.wn_structure))) for r in results})
     protocols = sorted({r.identify_protocol for r in results})
     lines = [
         "# Force accuracy on held-out sessions",
@@ -444,6 +463,7 @@ def write_accuracy_report(
         "test_duration_s": options.test_duration_s,
         "identify_protocol": options.identify_protocol,
         "friction": options.friction,
+        "wn_structure": options.wn_structure,
         "sessions": [r.to_json() for r in results],
     }
     path = folder / "accuracy.json"

@@ -170,6 +170,9 @@ class _FrictionSession:
         raise ConfigurationError(f"no {kind} model in the friction experiments")
 
 
+#: The paper's network: the whole friction (not added to the coupled CV), so "pure" means it.
+_PAPER_WN = WaveletOptions(on_fallback=False)
+
 #: The friction models each friction session trains, in the report's order.
 _SESSION_FRICTIONS: tuple[FrictionKind, ...] = (
     FrictionKind.CV,
@@ -302,7 +305,7 @@ def _friction_experiments(
         simulated = friction_protocol(mode, options.training_duration_s, options.seed)
         log(f"friction session {mode} simulated in {perf_counter() - started:.1f} s")
         cv, coupled_cv, wn = (
-            _Fit(*identify_model([_recording(simulated)], description, kind))
+            _Fit(*identify_model([_recording(simulated)], description, kind, wavelet=_PAPER_WN))
             for kind in _SESSION_FRICTIONS
         )
         return _FrictionSession(simulated, cv, coupled_cv, wn)
@@ -368,7 +371,7 @@ def _generated_training(
     log(f"generated-training session simulated in {perf_counter() - started:.1f} s")
     filled_rec = _recording(filled)
     cv_model = identify_model([filled_rec], description, FrictionKind.CV)[0]
-    wn_model = identify_model([filled_rec], description, FrictionKind.WN)[0]
+    wn_model = identify_model([filled_rec], description, FrictionKind.WN, wavelet=_PAPER_WN)[0]
     filter_config = friction.independent.wn.model.filter_config
     cv = evaluate_prepared(
         cv_model, prepare([test.recording], description, filter_config, cv_model.base)[0]
@@ -395,7 +398,10 @@ def _method_comparison(
     for method in ("batch", "adaptive"):
         started = perf_counter()
         model, report = identify_model(
-            [recording], description, FrictionKind.WN, wavelet=WaveletOptions(method=method)
+            [recording],
+            description,
+            FrictionKind.WN,
+            wavelet=WaveletOptions(method=method, on_fallback=False),
         )
         elapsed = perf_counter() - started
         prepared = prepare([test.recording], description, model.filter_config, model.base)[0]

@@ -104,8 +104,8 @@ def test_coverage_config_validation():
         CoverageConfig(cell_size_1d_rad_s=0.0)
 
 
-def trained_network() -> WaveletNetwork:
-    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0))
+def trained_network(on_fallback: bool = False) -> WaveletNetwork:
+    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0), on_fallback=on_fallback)
     rng = np.random.default_rng(0)
     for j in range(3):
         idx = net.active_global_indices(j)
@@ -124,6 +124,19 @@ def test_blended_torque_uses_fallback_off_ground_and_wn_on_ground():
     mid = np.array([0.2, 1.2, -0.3])
     w = net.coverage_weight(mid)[0]
     expected = w * net.torque(mid) + (1 - w) * net.fallback.torque(mid)
+    np.testing.assert_allclose(net.blended_torque(mid), expected)
+
+
+def test_a_network_on_its_fallback_adds_to_it_where_it_was_trained():
+    net = trained_network(on_fallback=True)
+    off = np.array([[1.95, -1.9, 1.9], [3.0, 3.0, -3.0]])
+    np.testing.assert_allclose(net.blended_torque(off), net.fallback.torque(off))
+    on = np.random.default_rng(5).uniform(-0.8, 0.8, size=(50, 3))
+    np.testing.assert_allclose(net.blended_torque(on), net.fallback.torque(on) + net.torque(on))
+    mid = np.array([0.2, 1.2, -0.3])
+    w = net.coverage_weight(mid)[0]
+    assert 0.0 < w.min() < 1.0 or 0.0 < w.max() < 1.0  # partly trusted
+    expected = net.fallback.torque(mid) + w * net.torque(mid)
     np.testing.assert_allclose(net.blended_torque(mid), expected)
 
 

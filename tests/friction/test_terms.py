@@ -111,14 +111,14 @@ def test_mexican_hat_single_definition_against_numpy():
     np.testing.assert_allclose(block, ref, rtol=1e-13, atol=1e-15)
 
 
-def _network(seed: int) -> WaveletNetwork:
+def _network(seed: int, on_fallback: bool = False) -> WaveletNetwork:
     specs = [
         WaveletJointSpec((0,), (-2.0,), (2.0,), -3, 0, 1e-4, 2e-4),
         WaveletJointSpec((1, 2), (-2.0, -2.0), (2.0, 2.0), -2, 0, 1e-4, 2e-4),
         WaveletJointSpec((1, 2), (-2.0, -2.0), (2.0, 2.0), -2, 0, 1e-4, 2e-4),
     ]
     fallback = CoupledCoulombViscous(3, ((0,), (1, 2), (1, 2)), np.linspace(0.01, 0.05, 10))
-    net = WaveletNetwork(3, specs, fallback=fallback)
+    net = WaveletNetwork(3, specs, fallback=fallback, on_fallback=on_fallback)
     rng = np.random.default_rng(seed)
     for j in range(3):
         sl = net.pool.joint_slice(j)
@@ -134,9 +134,9 @@ def _network(seed: int) -> WaveletNetwork:
     return net
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_wavelet_network_batch_and_streaming_agree(seed):
-    net = _network(seed)
+@pytest.mark.parametrize(("seed", "on_fallback"), [(0, False), (1, False), (2, True)])
+def test_wavelet_network_batch_and_streaming_agree(seed, on_fallback):
+    net = _network(seed, on_fallback)
     qd = np.random.default_rng(seed + 10).uniform(-2.5, 2.5, size=(300, 3))
     batch = net.torque(qd)
     assert np.abs(batch).max() > 1e-3
@@ -153,6 +153,10 @@ def test_wavelet_network_batch_and_streaming_agree(seed):
     got = [model_terms(0.0, zero, v.tolist(), zero) for v in qd]
     np.testing.assert_allclose([g[0] for g in got], net.blended_torque(qd), rtol=0, atol=ATOL)
     np.testing.assert_allclose([g[1] for g in got], net.coverage.trust(qd), rtol=0, atol=ATOL)
+    if on_fallback:  # the sum, not the paper's blend
+        w = net.coverage.trust(qd)
+        blend = w * batch + (1.0 - w) * net.fallback.torque(qd)
+        assert np.abs(net.blended_torque(qd) - blend).max() > 1e-3
 
 
 def _reference_density(coverage: CoverageMap, qd: np.ndarray, joint: int) -> np.ndarray:

@@ -146,8 +146,9 @@ def test_torque_batch_single_and_basis_agree():
     np.testing.assert_allclose(net.torque(qd[:3]), batch[:3], rtol=1e-12, atol=1e-18)
 
 
-def test_to_dict_round_trip_is_identical():
-    net = omni_net()
+@pytest.mark.parametrize("on_fallback", [False, True])
+def test_to_dict_round_trip_is_identical(on_fallback):
+    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0), on_fallback=on_fallback)
     random_structure(net, 40, seed=3)
     net.fallback = CoupledCoulombViscous(3, ((0,), (1, 2), (1, 2)), np.arange(10) * 1e-3)
     net.coverage.add(np.random.default_rng(2).uniform(-1.0, 1.0, size=(500, 3)))
@@ -160,6 +161,7 @@ def test_to_dict_round_trip_is_identical():
     qd = np.random.default_rng(4).uniform(-2.0, 2.0, size=(200, 3))
     np.testing.assert_array_equal(again.torque(qd), net.torque(qd))
     np.testing.assert_array_equal(again.blended_torque(qd), net.blended_torque(qd))
+    assert again.on_fallback is on_fallback
     assert again.to_dict() == data
 
 
@@ -170,6 +172,15 @@ def test_from_dict_rejects_bad_files():
         WaveletNetwork.from_dict(data)
     with pytest.raises(ModelFileError):
         WaveletNetwork.from_dict({"kind": "wn"})
+    on_nothing = omni_net().to_dict() | {"on_fallback": True}  # and no fallback
+    with pytest.raises(ModelFileError, match="fallback"):
+        WaveletNetwork.from_dict(on_nothing)
+
+
+def test_files_from_before_the_option_hold_the_papers_network():
+    data = omni_net().to_dict()
+    del data["on_fallback"]
+    assert WaveletNetwork.from_dict(data).on_fallback is False
 
 
 @pytest.mark.parametrize(

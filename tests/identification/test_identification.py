@@ -69,3 +69,31 @@ def test_wavelet_identification_on_little_data_falls_back_to_the_cv_with_a_warni
     )
     assert np.any(model.friction.fallback.parameters != 0.0)
     assert batch_min_visits(model.friction, np.zeros((0, 3))) == 1
+
+
+def test_a_network_on_its_fallback_is_trained_on_what_the_coupled_cv_leaves() -> None:
+    """The default network adds to the stage-one CV: it fits the remainder, not the friction."""
+    import teleop_force as tf
+    from teleop_force.identification.prepared import WaveletOptions
+    from teleop_force.simulation import rigid_body_protocol
+
+    session = rigid_body_protocol(20.0)
+    recording = tf.Recording(session.t_s, session.q_rad, session.tau_nm)
+    description = tf.omni_description()
+    on, on_report = tf.identify_model([recording], description, "wn")
+    alone, alone_report = tf.identify_model(
+        [recording], description, "wn", wavelet=WaveletOptions(on_fallback=False)
+    )
+    assert on.friction.on_fallback and not alone.friction.on_fallback
+    assert on_report.details["wn_on_fallback"] is True
+    np.testing.assert_array_equal(
+        on.friction.fallback.parameters, alone.friction.fallback.parameters
+    )
+    qd = session.qd_true_rad_s
+    own_on = np.sqrt(np.mean(on.friction.torque(qd) ** 2, axis=0))
+    own_alone = np.sqrt(np.mean(alone.friction.torque(qd) ** 2, axis=0))
+    assert np.all(own_on < 0.5 * own_alone)  # the CV carries most of the friction
+    # both explain the training torques about as well
+    np.testing.assert_allclose(
+        on_report.friction_relative_rms, alone_report.friction_relative_rms, atol=0.05
+    )

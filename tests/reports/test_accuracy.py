@@ -89,8 +89,9 @@ def test_harness_on_a_short_session(tmp_path: Path) -> None:
     assert 0.0 < result.contact_fraction < 1.0 and result.rms_contact_force_n > 0.1
     assert np.isfinite(result.contact_error_n) and result.lag_n > 0.0
     markdown, path = write_accuracy_report([result], tmp_path, options)
-    assert "| two | 4 |" in markdown.read_text()
-    assert json.loads(path.read_text())["sessions"][0]["seed"] == 4
+    assert "| two | 4 |" in markdown.read_text() and "friction wn on-cv" in markdown.read_text()
+    session_json = json.loads(path.read_text())["sessions"][0]
+    assert session_json["seed"] == 4 and session_json["wn_structure"] == "on-cv"
     assert accuracy_table([result]).count("\n") == 2
 
 
@@ -124,3 +125,17 @@ def test_cli_protocol_and_friction_flags() -> None:
     assert args.identify_protocol == "slow-stretch" and args.friction == "coupled-cv"
     defaults = build_parser().parse_args(["accuracy", "-o", "x"])
     assert defaults.identify_protocol == "teleoperation" and defaults.friction is None
+
+
+def test_the_network_structure_is_an_option() -> None:
+    with pytest.raises(ConfigurationError, match="wn structure"):
+        AccuracyOptions(wn_structure="beside")
+    assert AccuracyOptions().wn_structure == "on-cv"  # as `identify` fits it
+    on, _ = identify_free_motion("one", 2, 8.0)
+    alone, _ = identify_free_motion("one", 2, 8.0, wn_structure="alone")
+    assert on.friction.on_fallback and not alone.friction.on_fallback
+    args = build_parser().parse_args(["accuracy", "--wn-structure", "alone", "-o", "x"])
+    assert args.wn_structure == "alone"
+    assert build_parser().parse_args(["accuracy", "-o", "x"]).wn_structure == "on-cv"
+    identify = build_parser().parse_args(["identify", "d.csv", "-o", "m.json"])
+    assert identify.wn_structure == "on-cv"

@@ -15,9 +15,14 @@ def shipped_cv_model() -> DynamicModel:
     return dataclasses.replace(shipped, friction=shipped.friction.fallback)
 
 
-def wn_estimator(base: DynamicModel) -> ForceEstimator:
-    """An estimator of ``base`` with an (untrained) wavelet-network friction of its own."""
-    network = WaveletNetwork(3, omni_wavelet_specs(), fallback=base.friction)
+def wn_estimator(base: DynamicModel, on_fallback: bool = False) -> ForceEstimator:
+    """An estimator of ``base`` with an (untrained) wavelet-network friction of its own.
+
+    ``on_fallback``: the network adds to ``base``'s coupled CV instead of replacing it.
+    """
+    network = WaveletNetwork(
+        3, omni_wavelet_specs(), fallback=base.friction, on_fallback=on_fallback
+    )
     return ForceEstimator(
         DynamicModel(
             base.robot, base.n_joints, base.filter_config, base.base, base.base_values,
