@@ -39,3 +39,20 @@ FRICTION_KINDS: tuple[str, ...] = tuple(kind.value for kind in FrictionKind)
 #: (the default) is trained on what the coupled CV leaves and adds to it, ``alone`` is the
 #: paper's network, the whole friction, blended with the coupled CV off its trained ground.
 WN_STRUCTURES: tuple[str, ...] = ("on-cv", "alone")
+
+
+def wn_on_fallback(structure: str) -> bool:
+    """Return whether the structure called ``structure`` adds the network to the coupled CV.
+
+    Raise :class:`ConfigurationError` naming the choices if there is no such structure.
+    """
+    if structure not in WN_STRUCTURES:
+        raise ConfigurationError(
+            f"wn structure must be one of {', '.join(WN_STRUCTURES)}, got {structure!r}"
+        )
+    return structure == WN_STRUCTURES[0]
+
+
+def wn_structure_name(on_fallback: bool) -> str:
+    """Return the name of the structure that does (``on_fallback``) or does not add to the CV."""
+    return WN_STRUCTURES[0] if on_fallback else WN_STRUCTURES[1]

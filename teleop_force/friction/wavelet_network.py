@@ -62,6 +62,7 @@ from teleop_force.friction.base import (
 )
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.coverage import CoverageMap
+from teleop_force.friction.kinds import wn_structure_name
 from teleop_force.friction.terms import (
     mexican_hat_values,
     pool_wavelets,
@@ -653,6 +654,22 @@ class WaveletNetwork(FrictionModel):
     def on_fallback(self) -> bool:
         """Whether the network adds to its fallback (``CV + w WN``) instead of replacing it."""
         return self._on_fallback
+
+    @property
+    def structure(self) -> str:
+        """The structure's name (:data:`~teleop_force.friction.kinds.WN_STRUCTURES`)."""
+        return wn_structure_name(self._on_fallback)
+
+    def base_torque(self, qd: np.ndarray) -> np.ndarray:
+        """Friction at ``qd`` (N x n) that the network is not fitted to: what it adds to.
+
+        Its fallback's when :attr:`on_fallback` (what training and online adaptation subtract
+        from the network's target), else zeros.
+        """
+        qd = np.atleast_2d(np.asarray(qd, dtype=float))
+        if self._on_fallback and self.fallback is not None:
+            return np.asarray(self.fallback.torque(qd), dtype=float)
+        return np.zeros(qd.shape)
 
     @property
     def structure_version(self) -> int:

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from teleop_force.errors import ConfigurationError, DataError
-from teleop_force.friction.kinds import WN_STRUCTURES
+from teleop_force.friction.kinds import wn_on_fallback
 from teleop_force.identification.filtered_regressor import (
     FilterConfig,
     FilteredSignals,
@@ -42,12 +42,8 @@ class WaveletOptions:
 
 
 def wavelet_options_for(structure: str, method: str = "batch") -> WaveletOptions:
-    """Return the options of the network structure called ``structure`` (:data:`WN_STRUCTURES`)."""
-    if structure not in WN_STRUCTURES:
-        raise ConfigurationError(
-            f"wn structure must be one of {', '.join(WN_STRUCTURES)}, got {structure!r}"
-        )
-    return WaveletOptions(method=method, on_fallback=structure == "on-cv")
+    """Return the options of the network structure called ``structure`` (``WN_STRUCTURES``)."""
+    return WaveletOptions(method=method, on_fallback=wn_on_fallback(structure))
 
 
 @dataclass(frozen=True, eq=False)

@@ -148,11 +148,11 @@ def train_wavelet_network(
     )
     details: dict[str, Any] = {"wn_method": options.method, "wn_on_fallback": options.on_fallback}
     known: list[Any] = list(known_torque_l) if known_torque_l is not None else [0.0] * len(prepared)
-    if options.on_fallback:
+    if network.on_fallback:
         known = [
             extra
             + lowpass_batch(
-                fallback.torque(p.signals.qd_rad_s), p.signals.t_s, p.signals.config.cutoff_hz
+                network.base_torque(p.signals.qd_rad_s), p.signals.t_s, p.signals.config.cutoff_hz
             )
             for p, extra in zip(prepared, known, strict=True)
         ]

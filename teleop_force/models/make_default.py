@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from teleop_force.errors import ConfigurationError, TeleopForceError
-from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind
+from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind, wn_on_fallback
 from teleop_force.identification.pipeline import identify_model
 from teleop_force.identification.prepared import wavelet_options_for
 from teleop_force.io.interchange_csv import Recording
@@ -65,7 +65,7 @@ class ProtocolConfig:
             raise ConfigurationError(f"unknown friction {self.friction!r}")
         if self.seed < 0:
             raise ConfigurationError(f"seed must be >= 0, got {self.seed}")
-        wavelet_options_for(self.wn_structure)
+        wn_on_fallback(self.wn_structure)
 
 
 def _recording(session: SimulatedSession) -> Recording:

@@ -47,8 +47,7 @@ from typing import Any
 import numpy as np
 
 from teleop_force.errors import ConfigurationError
-from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind
+from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind, wn_on_fallback
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig
@@ -180,7 +179,7 @@ class AccuracyOptions:
         _identify_protocol(self.identify_protocol)
         if self.friction is not None:
             FrictionKind.parse(self.friction)
-        wavelet_options_for(self.wn_structure)
+        wn_on_fallback(self.wn_structure)
 
 
 @dataclass(frozen=True)
@@ -212,13 +211,6 @@ class SessionAccuracy:
             key: (None if isinstance(value, float) and not math.isfinite(value) else value)
             for key, value in dataclasses.asdict(self).items()
         }
-
-
-def _wn_structure(friction: FrictionModel) -> str | None:
-    """Return the network's structure name (``None``: the friction is not a network)."""
-    if not isinstance(friction, WaveletNetwork):
-        return None
-    return WN_STRUCTURES[0] if friction.on_fallback else WN_STRUCTURES[1]
 
 
 def _rms_norm(x: np.ndarray) -> float:
@@ -364,7 +356,9 @@ def session_accuracy(
         seed=int(seed),
         estimator=describe() if callable(describe) else getattr(estimator, "__name__", "custom"),
         friction=str(model.friction.kind),
-        wn_structure=_wn_structure(model.friction),
+        wn_structure=(
+            model.friction.structure if isinstance(model.friction, WaveletNetwork) else None
+        ),
         identify_protocol=options.identify_protocol,
         identify_wall_s=round(identify_wall, 1),
         simulate_wall_s=round(simulate_wall, 1),

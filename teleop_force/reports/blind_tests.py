@@ -21,7 +21,6 @@ the same family. Writes a markdown table (``teleop-force residual-blind -o DIR``
 
 from __future__ import annotations
 
-import inspect
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,12 +28,11 @@ from pathlib import Path
 from time import perf_counter
 from typing import Any
 
-from teleop_force.errors import ConfigurationError
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.residual.loop import trace_residual
 from teleop_force.residual.options import ResidualOptions
 from teleop_force.robots.omni import omni_description
-from teleop_force.simulation import EFFECT_NAMES, make_effect, rigid_body_protocol
+from teleop_force.simulation import EFFECT_NAMES, SessionOptions, make_effect, rigid_body_protocol
 
 #: What a correct trace names for each plant effect: joint (1-based), acceptable variables,
 #: acceptable kinds.
@@ -169,17 +167,10 @@ class PayloadCase:
         return all(f["kind"] == "payload" or is_friction_shape(f) for f in self.found)
 
 
-def protocol_kwargs(family: str, tip_mass_kg: float = 0.0) -> dict[str, Any]:
+def protocol_kwargs(family: str, tip_mass_kg: float = 0.0) -> SessionOptions:
     """Keyword arguments of the protocol builders for ``family`` and a tip mass."""
-    parameters = inspect.signature(rigid_body_protocol).parameters
-    kwargs: dict[str, Any] = {}
-    if family != "one" or "family" in parameters:
-        if "family" not in parameters:
-            raise ConfigurationError(f"the simulator has no plant family {family!r} yet")
-        kwargs["family"] = family
+    kwargs: SessionOptions = {"family": family}
     if tip_mass_kg:
-        if "tip_mass_kg" not in parameters:
-            raise ConfigurationError("the simulator takes no tip payload yet")
         kwargs["tip_mass_kg"] = tip_mass_kg
     return kwargs
 
@@ -196,13 +187,13 @@ def _recording(
 
     ``arm``: family two's arm (its inertias and friction; default: the session's seed).
     """
-    plant_effects = () if effect == "clean" else (make_effect(effect),)
     kwargs = protocol_kwargs(family, mass)
+    kwargs["effects"] = () if effect == "clean" else (make_effect(effect),)
     if arm is not None and family == "two":
         from teleop_force.simulation import PlantTwoConfig
 
         kwargs["plant_config"] = PlantTwoConfig(instance_seed=arm)
-    session = rigid_body_protocol(duration_s, seed, effects=plant_effects, **kwargs)
+    session = rigid_body_protocol(duration_s, seed, **kwargs)
     return Recording(session.t_s, session.q_rad, session.tau_nm)
 
 

@@ -26,11 +26,11 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.pipeline import (
     FitReport,
     PreparedRecording,
-    WaveletOptions,
     evaluate_prepared,
     identify_model,
     prepare,
 )
+from teleop_force.identification.prepared import wavelet_options_for
 from teleop_force.identification.regressor import full_parameters
 from teleop_force.identification.training_trajectory import (
     RegionCoverage,
@@ -171,7 +171,7 @@ class _FrictionSession:
 
 
 #: The paper's network: the whole friction (not added to the coupled CV), so "pure" means it.
-_PAPER_WN = WaveletOptions(on_fallback=False)
+_PAPER_WN = wavelet_options_for("alone")
 
 #: The friction models each friction session trains, in the report's order.
 _SESSION_FRICTIONS: tuple[FrictionKind, ...] = (
@@ -401,7 +401,7 @@ def _method_comparison(
             [recording],
             description,
             FrictionKind.WN,
-            wavelet=WaveletOptions(method=method, on_fallback=False),
+            wavelet=wavelet_options_for("alone", method),
         )
         elapsed = perf_counter() - started
         prepared = prepare([test.recording], description, model.filter_config, model.base)[0]

@@ -8,7 +8,7 @@ identifier's signals (see that module)::
     p_L = L(M(q_v) qd)                                   filtered generalized momentum
     u_L = L(L_v(tau))[k - lag] - L(-C^T qd + N + tau_spring + offsets [+ CV(qd)])
 
-(``CV(qd)``: the coupled CV of a network that adds to it, ``WaveletNetwork.on_fallback``)
+(``CV(qd)``: ``WaveletNetwork.base_torque``, the coupled CV of a network that adds to it)
 
 computed exactly as :class:`~teleop_force.estimation.estimator.ForceEstimator` computes its
 terms (same pre-filter ``L_v``, cut-offs, torque lag and rigid-body model).
@@ -143,16 +143,6 @@ def _make_adapter(
     )
 
 
-def _known_friction(network: WaveletNetwork, qd: np.ndarray) -> np.ndarray:
-    """Return the friction at ``qd`` (N, n) that the network is not fitted to.
-
-    Its fallback's coupled CV when it adds to it (:attr:`WaveletNetwork.on_fallback`), else 0.
-    """
-    if network.on_fallback and network.fallback is not None:
-        return np.asarray(network.fallback.torque(qd), dtype=float)
-    return np.zeros(qd.shape)
-
-
 def _check(estimator: ForceEstimator) -> WaveletNetwork:
     reason = adaptation_unavailable_reason(estimator)
     if reason is not None:
@@ -222,7 +212,7 @@ class OnlineAdaptation:
             robot.coriolis_transpose_gravity(q, qd)
             + robot.spring_torque(q, self.estimator.spring_stiffness)
             + self.estimator.model.offsets_nm
-            + _known_friction(self.adapter.network, qd[None, :])[0]
+            + self.adapter.network.base_torque(qd)[0]
         )
         rigid_l = self._rigid.update(rigid, dt)
         previous = self._torque.state
@@ -676,7 +666,7 @@ class AdaptationWorker:
         ``-C^T qd + N + springs + offsets``, plus the coupled CV of a network on its fallback.
         """
         momentum, other = self._chain_terms(q_v, qd)
-        return momentum, other + _known_friction(self.network, qd)
+        return momentum, other + self.network.base_torque(qd)
 
     def _chain_terms(self, q_v: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``M(q_v) qd`` and ``-C^T qd + N + springs + offsets`` in motor coordinates."""

@@ -29,6 +29,7 @@ from teleop_force.simulation.pid import PID, PIDGains
 from teleop_force.simulation.plant import PlantConfig, SimulatedOmni
 from teleop_force.simulation.plant_two import PlantTwoConfig, SimulatedOmniTwo
 from teleop_force.simulation.session import (
+    SessionOptions,
     SimulatedSession,
     friction_protocol,
     palpation_protocol,
@@ -57,6 +58,7 @@ __all__ = [
     "PlantEffect",
     "PlantFamily",
     "PlantTwoConfig",
+    "SessionOptions",
     "SimulatedOmni",
     "SimulatedOmniTwo",
     "SimulatedSession",

@@ -20,21 +20,17 @@ prints both figures per session). Joint references come from the Omni's inverse 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Unpack
 
 import numpy as np
 
 from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.robots import omni
 from teleop_force.simulation.contact import PlaneContact
-from teleop_force.simulation.effects import PlantEffect
 from teleop_force.simulation.families import PlantFamily, default_contact
 from teleop_force.simulation.floor_contact import HuntCrossleyFloor
-from teleop_force.simulation.pid import PIDGains
-from teleop_force.simulation.plant import PlantConfig
-from teleop_force.simulation.plant_two import PlantTwoConfig
-from teleop_force.simulation.session import SimulatedSession, simulate_session
+from teleop_force.simulation.session import SessionOptions, SimulatedSession, simulate_session
 from teleop_force.simulation.trajectories import Trajectory, omni_inverse_kinematics
 
 _N_COMPONENTS = 24
@@ -241,27 +237,22 @@ def floor_touch_protocol(
     *,
     surface_y_m: float = -0.06,
     contact: PlaneContact | HuntCrossleyFloor | None = None,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    **options: Unpack[SessionOptions],
 ) -> SimulatedSession:
     """Teleoperation touching a soft floor (module docstring) on either plant family.
 
     ``contact`` defaults to the family's surface at ``surface_y_m``
-    (:func:`~teleop_force.simulation.families.default_contact`).
+    (:func:`~teleop_force.simulation.families.default_contact`); ``options``
+    (:class:`~teleop_force.simulation.session.SessionOptions`) go to
+    :func:`~teleop_force.simulation.session.simulate_session`.
     """
+    family = options.get("family", PlantFamily.ONE)
     floor = contact if contact is not None else default_contact(family, surface_y_m)
     return simulate_session(
         floor_touch_trajectory(seed, duration_s=duration_s, surface_y_m=surface_y_m),
         duration_s,
         seed,
-        effects=effects,
         contact=floor,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
         name="floor-touch",
+        **options,
     )

@@ -30,6 +30,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from time import perf_counter
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -352,44 +353,31 @@ def _simulate_family_two(
     )
 
 
+class SessionOptions(TypedDict, total=False):
+    """What every protocol passes on to :func:`simulate_session` (its docstring says each)."""
+
+    effects: Sequence[PlantEffect]
+    plant_config: PlantConfig | PlantTwoConfig | None
+    pid_gains: PIDGains | None
+    family: PlantFamily | str
+    tip_mass_kg: float
+
+
 def rigid_body_protocol(
-    duration_s: float = 240.0,
-    seed: int = 0,
-    *,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    duration_s: float = 240.0, seed: int = 0, **options: Unpack[SessionOptions]
 ) -> SimulatedSession:
     """Paper IV-A: 4 minutes of 4 sinusoids per joint at 0.5-2 Hz.
 
-    See :func:`~teleop_force.simulation.trajectories.rigid_body_trajectory`; the keyword
-    arguments go to :func:`simulate_session`.
+    See :func:`~teleop_force.simulation.trajectories.rigid_body_trajectory`; ``options``
+    (:class:`SessionOptions`) go to :func:`simulate_session`.
     """
     return simulate_session(
-        rigid_body_trajectory(seed),
-        duration_s,
-        seed,
-        effects=effects,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
-        name="rigid-body",
+        rigid_body_trajectory(seed), duration_s, seed, name="rigid-body", **options
     )
 
 
 def friction_protocol(
-    mode: str,
-    duration_s: float = 240.0,
-    seed: int = 0,
-    *,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    mode: str, duration_s: float = 240.0, seed: int = 0, **options: Unpack[SessionOptions]
 ) -> SimulatedSession:
     """Paper IV-B experiments 1-2: slow sinusoids (<= 0.7 Hz), joints 2-3 moving ``mode``.
 
@@ -397,39 +385,16 @@ def friction_protocol(
     :func:`~teleop_force.simulation.trajectories.friction_trajectory`).
     """
     return simulate_session(
-        friction_trajectory(mode, seed),
-        duration_s,
-        seed,
-        effects=effects,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
-        name=f"friction-{mode}",
+        friction_trajectory(mode, seed), duration_s, seed, name=f"friction-{mode}", **options
     )
 
 
 def teleoperation_protocol(
-    duration_s: float = 60.0,
-    seed: int = 0,
-    *,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    duration_s: float = 60.0, seed: int = 0, **options: Unpack[SessionOptions]
 ) -> SimulatedSession:
     """Paper IV-B experiment 3: band-limited random motion (an operator moving the master)."""
     return simulate_session(
-        teleoperation_trajectory(seed),
-        duration_s,
-        seed,
-        effects=effects,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
-        name="teleoperation",
+        teleoperation_trajectory(seed), duration_s, seed, name="teleoperation", **options
     )
 
 
@@ -438,11 +403,7 @@ def slow_stretch_protocol(
     seed: int = 0,
     *,
     slow_fraction: float = 0.4,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    **options: Unpack[SessionOptions],
 ) -> SimulatedSession:
     """Free band-limited random motion with slow stretches (``slow_fraction`` of the time).
 
@@ -454,12 +415,8 @@ def slow_stretch_protocol(
         slow_stretch_trajectory(duration_s, seed, slow_fraction=slow_fraction),
         duration_s,
         seed,
-        effects=effects,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
         name="slow-stretch",
+        **options,
     )
 
 
@@ -470,11 +427,7 @@ def palpation_protocol(
     surface_y_m: float = -0.06,
     depth_m: float = 0.006,
     contact: PlaneContact | HuntCrossleyFloor | None = None,
-    effects: Sequence[PlantEffect] = (),
-    plant_config: PlantConfig | PlantTwoConfig | None = None,
-    pid_gains: PIDGains | None = None,
-    family: PlantFamily | str = PlantFamily.ONE,
-    tip_mass_kg: float = 0.0,
+    **options: Unpack[SessionOptions],
 ) -> SimulatedSession:
     """Palpation of a soft tissue: approach, press ``depth_m`` into it, slide, release; repeat.
 
@@ -482,17 +435,9 @@ def palpation_protocol(
     (300 N/m: the PID's integral drives the tip to the reference depth, ~1.8 N at 6 mm);
     on family two to a :class:`HuntCrossleyFloor` there (~1.5 N at 6 mm, 3200 N/m^1.5).
     """
+    family = options.get("family", PlantFamily.ONE)
     tissue = contact if contact is not None else default_contact(family, surface_y_m)
     trajectory = palpation_trajectory(duration_s, seed, surface_y_m=surface_y_m, depth_m=depth_m)
     return simulate_session(
-        trajectory,
-        duration_s,
-        seed,
-        effects=effects,
-        contact=tissue,
-        plant_config=plant_config,
-        pid_gains=pid_gains,
-        family=family,
-        tip_mass_kg=tip_mass_kg,
-        name="palpation",
+        trajectory, duration_s, seed, contact=tissue, name="palpation", **options
     )

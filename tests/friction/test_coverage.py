@@ -138,6 +138,12 @@ def test_a_network_on_its_fallback_adds_to_it_where_it_was_trained():
     assert 0.0 < w.min() < 1.0 or 0.0 < w.max() < 1.0  # partly trusted
     expected = net.fallback.torque(mid) + w * net.torque(mid)
     np.testing.assert_allclose(net.blended_torque(mid), expected)
+    # what training and adaptation subtract from its target: the CV it adds to
+    np.testing.assert_array_equal(net.base_torque(on), net.fallback.torque(on))
+    assert net.structure == "on-cv"
+    alone = trained_network()
+    np.testing.assert_array_equal(alone.base_torque(on), np.zeros_like(on))
+    assert alone.structure == "alone"
 
 
 def test_blended_torque_needs_fallback():
