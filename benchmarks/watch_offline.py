@@ -3,7 +3,8 @@
 The streams are made by ``master_slave.watched_streams.watched_session``, as
 the demo makes them: the simulated Omni under the PID along the palpation script, the
 service's estimator on each sample, the wire payloads packed as the slave and the service pack
-them, appended to the watch's ring and evaluated every second of stream time. Per seed:
+them, appended to the watch's ring and evaluated every second of stream time, the watch
+testing its own estimate (``WatchResidual``, as in the service). Per seed:
 
 - ``clean``: 600 s without an effect; every report is false;
 - each effect (``position-friction``, ``load-friction``, ``drifting-friction``): switched on at

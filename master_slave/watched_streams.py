@@ -3,7 +3,9 @@
 The streams are made as the live system makes them: the simulated Omni under the PID along
 the palpation script (the demo's operator), the service's estimator on each sample, the wire
 payloads packed as the slave and the service pack them, appended to the watch's ring and
-evaluated every second of stream time, exactly as the service's thread does. An effect may be
+evaluated every second of stream time, with the watch's own estimator of the model
+(:class:`~teleop_force.service.watch_residual.WatchResidual`), exactly as the service's thread
+does. An effect may be
 switched on in the plant mid-session with the demo's calibration (``--plant-effect``).
 """
 
@@ -19,6 +21,7 @@ from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.service.residual_watch import ResidualWatch, WatchConfig
+from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.simulation import PID, PIDGains, PlaneContact, PlantConfig, SimulatedOmni
 from teleop_force.simulation.trajectories import palpation_trajectory
 from teleop_force.transport import messages as m
@@ -72,9 +75,12 @@ def watched_session(
     seed: int,
     switch: EffectSwitch | None = None,
     config: WatchConfig | None = None,
+    model: DynamicModel | None = None,
 ) -> WatchedSession:
-    """Simulate the demo's slave along the palpation script and run the watch on it."""
-    estimator = ForceEstimator(DynamicModel.load(DEFAULT_MODEL_PATH))
+    """Simulate the demo's slave along the palpation script and run the watch on it.
+
+    ``model``: the service's model (default: the shipped one, :data:`DEFAULT_MODEL_PATH`).
+    """
     plant_config = PlantConfig()
     dt = plant_config.control_period_s
     n_ticks = round(duration_s / dt)
@@ -88,7 +94,10 @@ def watched_session(
     )
     pid = PID(PIDGains.omni(), n_joints=3, control_period_s=dt)
     pid.reset(integral_nm=plant.holding_torque_nm())
-    watch = ResidualWatch(3, config)
+    if model is None:
+        model = DynamicModel.load(DEFAULT_MODEL_PATH)
+    estimator = ForceEstimator(model)
+    watch = ResidualWatch(3, config, residual=WatchResidual(model))
     history = _EffectHistory(10_000) if switch is not None else None
     switch_tick = None if switch is None else round(switch.at_s / dt)
     effect_text, effect_joint, switched_at = "", None, None

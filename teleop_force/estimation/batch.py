@@ -174,11 +174,16 @@ class BatchEstimator:
         q_rad: np.ndarray,
         tau_nm: np.ndarray,
         stream_starts: np.ndarray | None = None,
+        *,
+        stream_time_s: np.ndarray | None = None,
     ) -> BatchEstimates:
         """Estimate on every sample; a stream begins at sample 0 and at ``stream_starts``.
 
-        Raises DataError for a non-finite value, a shape that does not fit the model, or a
-        time that does not increase within a stream (the row is 1-based, as in a file).
+        ``stream_time_s``: each sample's time since its stream began [s], what found effects
+        that drift are evaluated at (default: since the stream's first sample given here; a
+        caller that estimates a long stream in pieces passes its own). Raises DataError for a
+        non-finite value, a shape that does not fit the model, or a time that does not
+        increase within a stream (the row is 1-based, as in a file).
         """
         t, q, tau = self._check(t_s, q_rad, tau_nm)
         starts = _start_mask(t.size, stream_starts)
@@ -194,8 +199,14 @@ class BatchEstimator:
             )
             momentum, rigid_other = self._rigid_terms(q_v, qd)
             load = _rigid_load(momentum, rigid_other, dt, starts, self._omega)
-            t_first = t[np.maximum.accumulate(np.where(starts, np.arange(t.size), 0))]
-            other, weight = self._model_terms(t - t_first, q_v, qd, load, pool)
+            if stream_time_s is None:
+                t_first = t[np.maximum.accumulate(np.where(starts, np.arange(t.size), 0))]
+                since_start = t - t_first
+            else:
+                since_start = np.ascontiguousarray(stream_time_s, dtype=float).reshape(-1)
+                if since_start.shape != t.shape:
+                    raise DataError(f"stream_time_s must have {t.size} values")
+            other, weight = self._model_terms(since_start, q_v, qd, load, pool)
             tau_filtered, tau_model, tau_ext = _output_filter(
                 other, tau_v, load, dt, starts, self._omega, self._lag,
             )  # fmt: skip

@@ -46,14 +46,19 @@ EstimatorName = Literal["filter", "observer"]
 #: contact-force error on simulated plant family one, seeds 1-3 (the sweep and its figures:
 #: docs/results.md, "Force accuracy on unseen data"); family two is reported, never tuned on.
 DEFAULT_ESTIMATOR = "observer"
-DEFAULT_OBSERVER_HZ = 24.0
+#: The observer at 40 Hz on its own pre-filter of two first-order stages at 40 Hz: the two
+#: stages roll off the encoder count's noise that one stage passes flat, and buy the wider
+#: band (family one, seeds 1-3: 7.93 % against 9.13 % for the observer at 24 Hz on one stage
+#: at ``L_v``, the default until 2026-11-26; 45 Hz stages 7.85 %, a tie). The residual watch
+#: does not test these estimates: it makes its own with the 24 Hz estimator it was calibrated
+#: on (:mod:`teleop_force.service.watch_residual`), since with the faster one it missed a
+#: drifting friction (docs/accuracy/low_speed.md).
+DEFAULT_OBSERVER_HZ = 40.0
 DEFAULT_STANDSTILL_BAND_RAD_S = 0.02
-#: The observer's own pre-filter by default: one first-order stage at ``L_v``'s cutoff, what
-#: the observer always ran on (``observer_prefilter_hz`` None follows ``velocity_cutoff_hz``).
-#: Two stages roll off the encoder count's noise that one stage passes flat, and buy a wider
-#: band: better on plant family one, but not the default: with them the residual watch misses
-#: a drifting friction it caught before (docs/accuracy/low_speed.md).
-DEFAULT_OBSERVER_PREFILTER_STAGES = 1
+#: Cutoff [Hz] of each stage of the observer's pre-filter by default (``observer_prefilter_hz``
+#: None follows ``velocity_cutoff_hz``: what the observer ran on before it had its own).
+DEFAULT_OBSERVER_PREFILTER_HZ = 40.0
+DEFAULT_OBSERVER_PREFILTER_STAGES = 2
 #: Stages the pre-filter may have.
 PREFILTER_STAGES = (1, 2)
 #: What a model file without these fields means: written before the observer existed, its
@@ -94,7 +99,7 @@ class FilterConfig:
     estimator: str = DEFAULT_ESTIMATOR
     observer_hz: float = DEFAULT_OBSERVER_HZ
     standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
-    observer_prefilter_hz: float | None = None
+    observer_prefilter_hz: float | None = DEFAULT_OBSERVER_PREFILTER_HZ
     observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
 
     def __post_init__(self) -> None:

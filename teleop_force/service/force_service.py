@@ -15,7 +15,10 @@ For one device (``--device``, the slave)::
 
 The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
 at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
-receive callback only appends the two payloads to its preallocated ring.
+receive callback only appends the two payloads to its preallocated ring. The watch makes its
+own external torque from the joint states, with the estimator it was calibrated on
+(:mod:`~teleop_force.service.watch_residual`), whatever estimator the forces are published
+with.
 
 Each joint state is estimated on in the Zenoh receive thread that delivers it (the compiled
 step of :class:`~teleop_force.estimation.estimator.ForceEstimator` costs microseconds: no
@@ -129,6 +132,7 @@ from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.service.residual_watch import ResidualWatch
 from teleop_force.service.stream_clock import StreamClock
+from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
@@ -251,6 +255,7 @@ class ForceService:
                 device=self.config.device,
                 model_path=None if model_path is None else str(model_path),
                 recording_path=self._recording_path,
+                residual=WatchResidual(self.model),
             )
             if self.config.residual_watch and not self.config.zenoh_floor
             else None
@@ -628,7 +633,8 @@ class ForceService:
             self.stream.reset()
             self.controls.loads += 1
         if self.residual_watch is not None:
-            self.residual_watch.reset(model_path=str(path))  # a new baseline for the new model
+            # a new baseline for the new model, tested with the watch's estimator of it
+            self.residual_watch.reset(model_path=str(path), residual=WatchResidual(model))
         log(ROLE, f"now estimating with {path} ({model.friction.kind})")
         return path
 

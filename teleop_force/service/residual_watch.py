@@ -5,16 +5,21 @@ own, steady misfit whenever the tip touches nothing. When the arm changes during
 payload, a worn cable, warmer motors: something the model does not have), ``tau_ext`` in free
 motion acquires a dependence on a variable. The watch tests for that, per joint, on what a real
 slave publishes and the service computes (never on a simulator's truth): the joint angles
-``q`` (JointState), the estimate's force ``F``, ``tau_ext`` and low-passed motor torque
-(ForceEstimate), and time.
+``q`` and motor torques (JointState), the force ``F``, ``tau_ext`` and low-passed motor
+torque of an estimate, and time. In the service the estimate tested is the watch's own
+(:class:`~teleop_force.service.watch_residual.WatchResidual`): the model's, always with the
+estimator the thresholds below were calibrated on (the observer at 24 Hz on one stage at
+``L_v``), made from the joint states in the watch's thread, whatever estimator the forces
+are published with; without one, the published estimates (ForceEstimate) are tested.
 
 Hot path: the service's receive callback only calls :meth:`ResidualWatch.append` with the two
 payloads it already has (the joint state received, the estimate published): two reference
 stores into preallocated slots of a ring (:class:`PayloadRing`; bytes objects are not tracked
 by the garbage collector). Everything else runs in the watch's own thread every
-:attr:`WatchConfig.period_s` (1 s), which decodes the new payloads in bulk with NumPy.
+:attr:`WatchConfig.period_s` (1 s), which decodes the new payloads in bulk with NumPy and
+runs its estimator on them (compiled, in one batch).
 
-Free motion (from published data only): a sample is *free* when the estimated tip force is
+Free motion (from the estimate tested, never the truth): a sample is *free* when its tip force is
 finite and below :attr:`WatchConfig.free_force_n` (0.5 N), and no sample within
 :attr:`WatchConfig.guard_s` (0.15 s) on either side is above it or singular (contact and its
 transients are left out); joint ``j``'s rows are the free ones at which joint ``j`` moves
@@ -77,7 +82,8 @@ beginning, the watch sees what changes during a session, in the poses of the bas
 effect present from the first sample is the job of ``teleop-force residual RECORDING --model
 MODEL`` (the command the diagnostics name).
 
-Cost: one evaluation decodes about a second of payloads and solves, per joint, about ten
+Cost: one evaluation decodes about a second of payloads, estimates them (1.5 s of samples
+with the context), and solves, per joint, about ten
 least-squares problems of (baseline's matched rows + window's) rows, a few hundred each, and at
 most 15 columns, plus one (window rows x baseline rows) neighbour search; the baseline is
 matched with itself once per joint, when it is frozen: milliseconds per second of stream
@@ -90,6 +96,7 @@ Published: :class:`~teleop_force.transport.messages.ServiceDiagnostics` (JSON) o
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import threading
 import time
@@ -101,6 +108,7 @@ import numpy as np
 from scipy import stats as scipy_stats
 
 from teleop_force.errors import ConfigurationError, MessageError
+from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import messages as m
 
 #: Samples the ring keeps (65.5 s at 1 kHz): more than a window plus the decoding margin.
@@ -245,9 +253,9 @@ class PayloadRing:
 def _joint_state_dtype(n: int) -> np.dtype:
     return np.dtype(
         {
-            "names": ["seq", "t_ns", "q"],
-            "formats": ["<u4", "<i8", ("<f8", (n,))],
-            "offsets": [4, 8, 17],
+            "names": ["seq", "t_ns", "q", "effort"],
+            "formats": ["<u4", "<i8", ("<f8", (n,)), ("<f8", (n,))],
+            "offsets": [4, 8, 17, 17 + 16 * n],
             "itemsize": 17 + 24 * n,
         }
     )
@@ -273,6 +281,7 @@ class Samples:
         t_s: Stream time of the watch [s] (N,).
         seq: Joint-state sequence numbers (N,).
         q_rad: Joint angles (N, n).
+        effort_nm: Motor torques of the joint states (N, n).
         force_n: Estimated tip force (N, 3), NaN when singular.
         tau_ext_nm: Estimated external torques (N, n).
         tau_motor_nm: Low-passed motor torques of the estimate (N, n).
@@ -283,6 +292,7 @@ class Samples:
     t_s: np.ndarray
     seq: np.ndarray
     q_rad: np.ndarray
+    effort_nm: np.ndarray
     force_n: np.ndarray
     tau_ext_nm: np.ndarray
     tau_motor_nm: np.ndarray
@@ -304,6 +314,7 @@ def decode_samples(
         t_s=(js["t_ns"] - t0_ns) * 1e-9,
         seq=js["seq"].astype(np.int64),
         q_rad=np.array(js["q"], dtype=float).reshape(count, n),
+        effort_nm=np.array(js["effort"], dtype=float).reshape(count, n),
         force_n=np.array(est["f"], dtype=float).reshape(count, 3),
         tau_ext_nm=np.array(est["tau_ext"], dtype=float).reshape(count, n),
         tau_motor_nm=np.array(est["tau_motor"], dtype=float).reshape(count, n),
@@ -438,8 +449,14 @@ class ResidualWatch:
         device: str = "slave",
         model_path: str | None = None,
         recording_path: Callable[[], str | None] | None = None,
+        residual: WatchResidual | None = None,
     ) -> None:
-        """Prepare the ring; nothing runs until :meth:`start` (or :meth:`evaluate` by hand)."""
+        """Prepare the ring; nothing runs until :meth:`start` (or :meth:`evaluate` by hand).
+
+        ``residual``: the watch's own estimator (:class:`~teleop_force.service.watch_residual.
+        WatchResidual` of the model running), which makes the force, ``tau_ext`` and motor
+        torque tested from the joint states; ``None``: the published estimates are tested.
+        """
         if not 1 <= n_joints <= m.MAX_JOINTS:
             raise ConfigurationError(f"n_joints must be in 1..{m.MAX_JOINTS}, got {n_joints}")
         self.n = n_joints
@@ -447,6 +464,7 @@ class ResidualWatch:
         self.device = device
         self.model_path = model_path
         self._recording_path = recording_path
+        self._residual = residual
         self.ring = PayloadRing(self.config.ring_capacity)
         #: Bound method of the ring: what the receive callback calls.
         self.append = self.ring.append
@@ -463,6 +481,8 @@ class ResidualWatch:
         self._start_state()
 
     def _start_state(self) -> None:
+        if self._residual is not None:
+            self._residual.reset()
         self._read = self.ring.count  # the next sample to decode
         self._t0_ns: int | None = None
         self._last_t_s: float | None = None
@@ -502,11 +522,17 @@ class ResidualWatch:
         if thread is not None:
             thread.join(timeout_s)
 
-    def reset(self, model_path: str | None = None) -> None:
-        """Forget the baseline and the findings (a new model runs from the next sample)."""
+    def reset(self, model_path: str | None = None, residual: WatchResidual | None = None) -> None:
+        """Forget the baseline and the findings (a new model runs from the next sample).
+
+        ``residual``: the new model's :class:`~teleop_force.service.watch_residual.
+        WatchResidual` (``None`` keeps the current one).
+        """
         with self._lock:
             if model_path is not None:
                 self.model_path = model_path
+            if residual is not None:
+                self._residual = residual
             self._start_state()
 
     def _loop(self) -> None:
@@ -563,11 +589,19 @@ class ResidualWatch:
             return None
         if start > self._read:  # lapped: the context is lost
             self._tail, self._next_first = None, 0
+            if self._residual is not None:
+                self._residual.reset()
         if self._t0_ns is None:
             self._t0_ns = m.peek_header(copied[0][0])[3]
         fresh = decode_samples(copied[0], copied[1], self.n, start, self._t0_ns)
         self._read = count
         run, run_start = self._runs(fresh)
+        if self._residual is not None:
+            own = self._residual(fresh.t_s, fresh.q_rad, fresh.effort_nm, run, run_start)
+            fresh = dataclasses.replace(
+                fresh, force_n=own.force_tip_in_base_n, tau_ext_nm=own.tau_external_nm,
+                tau_motor_nm=own.tau_motor_filtered_nm,
+            )  # fmt: skip
         s = fresh
         if self._tail is not None:
             tail, tail_run, tail_start = self._tail

@@ -170,7 +170,11 @@ def test_with_estimator_overrides_only_what_is_given() -> None:
 
 
 def test_recording_metadata_names_the_estimator_a_replay_runs() -> None:
-    model = with_estimator(_model(), "observer", 20.0, 0.005)
+    chosen = with_estimator(_model(), "observer", 20.0, 0.005)
+    # a pre-filter that follows L_v (as in files from before the observer had its own)
+    model = dataclasses.replace(
+        chosen, filter_config=dataclasses.replace(chosen.filter_config, observer_prefilter_hz=None)
+    )
     metadata = {"model": "m.json", **estimator_metadata(model)}
     assert all(isinstance(v, str) for v in metadata.values())
     replayed = with_recorded_estimator(_model(), metadata).filter_config

@@ -54,6 +54,7 @@ def test_decode_samples_reads_the_wire_layouts() -> None:
     assert s.t_s.tolist() == pytest.approx([0.0, 1e-3, 2e-3, 3e-3])
     assert s.seq.tolist() == [5, 6, 7, 8]
     assert s.q_rad[3].tolist() == pytest.approx([0.3, 0.2, 0.3])
+    assert s.effort_nm[2].tolist() == [1.0, 2.0, 3.0]  # the joint state's torques
     assert s.force_n[0].tolist() == [7.0, 8.0, 9.0]
     assert s.tau_ext_nm[0].tolist() == [0.01, 0.02, 0.03]
     assert s.tau_motor_nm[0].tolist() == [0.5, 0.6, 0.7]  # not the coverage weights
@@ -263,3 +264,35 @@ def test_the_planted_effect_is_10_percent_of_the_joints_rms_torque_on_its_histor
         effect = calibrated_effect(EffectSwitch(name, scale=0.1), 60.0, rms, q, qd, tau)
         torque = effect.torque(np.full(2000, 60.0), q, qd, tau)[:, effect.joint]
         assert np.sqrt(np.mean(torque**2)) == pytest.approx(0.1 * rms[effect.joint], rel=1e-9)
+
+
+def test_a_watch_with_its_own_estimator_tests_that_not_the_published_one() -> None:
+    # the published estimates here claim 100 N everywhere (contact: no free row at all); the
+    # watch's own estimator of the model, fed the joint states, finds the free motion
+    from teleop_force.bench.data import palpation_arrays
+    from teleop_force.identification.dynamic_model import DynamicModel
+    from teleop_force.models import DEFAULT_MODEL_PATH
+    from teleop_force.service.watch_residual import WatchResidual
+
+    data = palpation_arrays(4.0, seed=2)
+    config = WatchConfig(warmup_s=0.0, settle_s=0.0)
+    junk = [100.0] * 3 + [0.0] * 12
+    watches = {
+        "published": ResidualWatch(3, config),
+        "own": ResidualWatch(
+            3, config, residual=WatchResidual(DynamicModel.load(DEFAULT_MODEL_PATH))
+        ),
+    }
+    free = {}
+    for name, watch in watches.items():
+        for k in range(data["t_s"].size):
+            stamp = T0_NS + k * 1_000_000
+            q, tau = data["q_rad"][k].tolist(), data["tau_nm"][k].tolist()
+            watch.append(
+                m.pack_joint_state(k, stamp, q, [0.0] * 3, tau),
+                m.pack_force_estimate(k, stamp, k, 3, junk, 7),
+            )
+        rows = watch._ingest()
+        free[name] = 0 if rows is None else int(np.count_nonzero(rows.free))
+    assert free["published"] == 0
+    assert free["own"] > 20
