@@ -44,6 +44,7 @@ from teleop_force.estimation.batch import (
     _observer_loop,
     _prefilter,
     _start_mask,
+    output_filter_loop,
 )
 from teleop_force.estimation.estimator import estimator_from_args
 from teleop_force.estimation.flags import add_estimator_arguments
@@ -188,6 +189,8 @@ def main() -> None:
                 zero, zero, zero, delta, dt, starts, 2 * np.pi * config.observer_hz,
                 int(config.torque_lag_samples),
             )  # fmt: skip
+            if config.estimator_output_hz is not None:  # linear too
+                output_filter_loop(change, dt, starts, 2 * np.pi * config.estimator_output_hz)
             tip, _ = estimator._tip_forces(jacobian, estimates.tau_external_nm + change)
             table.setdefault(name, []).append(
                 accuracy_figures(test, tip, reference, config.warmup_s)  # type: ignore[arg-type]

@@ -51,7 +51,11 @@ from teleop_force.estimation.estimator import (
     equivalent_rigid_body,
 )
 from teleop_force.estimation.kernels import ModelTerms, add_model_terms, first_prefilter_stage
-from teleop_force.estimation.momentum_observer import observer_update_into
+from teleop_force.estimation.momentum_observer import (
+    BUTTERWORTH_STATES,
+    butterworth_step_into,
+    observer_update_into,
+)
 from teleop_force.estimation.rigid_chain import (
     ChainTables,
     chain_jacobian_batch,
@@ -142,6 +146,8 @@ class BatchEstimator:
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
+        output_hz = config.estimator_output_hz
+        self._omega_output = 0.0 if output_hz is None else _TWO_PI * output_hz
         self._band = float(config.standstill_band_rad_s)
         robot = self.robot
         n = self.n
@@ -215,6 +221,8 @@ class BatchEstimator:
                     momentum, tau_v, rigid_other, other, dt, starts, self._omega_observer,
                     self._lag,
                 )  # fmt: skip
+                if self._omega_output > 0.0:
+                    output_filter_loop(tau_ext, dt, starts, self._omega_output)
                 tau_model = tau_filtered - tau_ext
             force, singular = self._tip_forces(jacobian.result(), tau_ext)
         return BatchEstimates(
@@ -594,6 +602,21 @@ def _observer_loop(
             residual[k],
         )  # fmt: skip
     return residual
+
+
+@njit_cached()
+def output_filter_loop(
+    values: np.ndarray, dt: np.ndarray, starts: np.ndarray, omega: float
+) -> None:  # pragma: no cover - compiled
+    """Run the observer's output Butterworth at ``omega`` [rad/s] over every sample, in place.
+
+    :func:`~teleop_force.estimation.momentum_observer.butterworth_step_into` per sample, its
+    state restarting with each stream, as the streaming step runs it.
+    """
+    n_samples, n = values.shape
+    state = np.zeros(BUTTERWORTH_STATES * n)
+    for k in range(n_samples):
+        butterworth_step_into(values[k], state, omega, dt[k], starts[k])
 
 
 @njit_cached()

@@ -115,10 +115,12 @@ def with_estimator(
     *,
     observer_prefilter_hz: float | None = None,
     observer_prefilter_stages: int | None = None,
+    observer_output_hz: float | None = None,
 ) -> DynamicModel:
     """Return ``model`` with its filter configuration's estimator choice overridden.
 
-    ``None`` keeps the model's own value; the result is ``model`` itself when nothing changes.
+    ``None`` keeps the model's own value (``observer_output_hz`` 0: no output filter); the
+    result is ``model`` itself when nothing changes.
     Its ``to_dict`` records the estimator that made the estimates. Raises ConfigurationError
     for an unknown estimator or a bandwidth, band or number of stages out of range.
     """
@@ -139,6 +141,10 @@ def with_estimator(
         for name, value in wanted.items()
         if value is not None and value != getattr(config, name)
     }
+    if observer_output_hz is not None:
+        output_hz = None if observer_output_hz == 0 else float(observer_output_hz)
+        if output_hz != config.observer_output_hz:
+            changes["observer_output_hz"] = output_hz
     if not changes:
         return model
     return dataclasses.replace(model, filter_config=dataclasses.replace(config, **changes))
@@ -150,6 +156,7 @@ def estimator_from_args(model: DynamicModel, args: argparse.Namespace) -> Dynami
         model, args.estimator, args.observer_hz,
         observer_prefilter_hz=args.observer_prefilter_hz,
         observer_prefilter_stages=args.observer_prefilter_stages,
+        observer_output_hz=args.observer_output_hz,
     )  # fmt: skip
 
 
@@ -159,6 +166,7 @@ _RECORDED_NUMBERS = (
     "standstill_band_rad_s",
     "observer_prefilter_hz",
     "observer_prefilter_stages",
+    "observer_output_hz",
 )
 
 
@@ -171,6 +179,7 @@ def estimator_metadata(model: DynamicModel) -> dict[str, str]:
         "standstill_band_rad_s": repr(float(config.standstill_band_rad_s)),
         "observer_prefilter_hz": repr(float(config.observer_prefilter_cutoff_hz)),
         "observer_prefilter_stages": str(int(config.observer_prefilter_stages)),
+        "observer_output_hz": repr(float(config.observer_output_hz or 0.0)),
     }
 
 
@@ -178,8 +187,9 @@ def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> Dy
     """Return ``model`` with the estimator choice a recording's metadata names (if it does).
 
     A recording made before the observer had its own pre-filter names none: its observer ran
-    on ``L_v`` (the model's ``velocity_cutoff_hz``, one stage). Raises ConfigurationError for
-    metadata that is not a valid choice.
+    on ``L_v`` (the model's ``velocity_cutoff_hz``, one stage); one made before the output
+    filter names none either: it had none (``observer_output_hz`` 0 means the same). Raises
+    ConfigurationError for metadata that is not a valid choice.
     """
     numbers: dict[str, float | None] = {}
     for key in _RECORDED_NUMBERS:
@@ -193,12 +203,16 @@ def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> Dy
     if metadata.get("estimator") and prefilter_hz is None:  # recorded before the field
         prefilter_hz = model.filter_config.velocity_cutoff_hz
         stages = 1.0
+    output_hz = numbers["observer_output_hz"]
+    if metadata.get("estimator") and output_hz is None:  # recorded before the field
+        output_hz = 0.0
     if stages is not None and stages not in (1.0, 2.0):
         raise ConfigurationError(f"recording metadata observer_prefilter_stages={stages!r}")
     return with_estimator(
         model, metadata.get("estimator") or None, numbers["observer_hz"],
         numbers["standstill_band_rad_s"], observer_prefilter_hz=prefilter_hz,
         observer_prefilter_stages=None if stages is None else int(stages),
+        observer_output_hz=output_hz,
     )  # fmt: skip
 
 
@@ -261,6 +275,8 @@ class ForceEstimator:
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
+        output_hz = config.estimator_output_hz
+        self._omega_output = 0.0 if output_hz is None else _TWO_PI * output_hz
         self._allocate()
         self._tables = self._fused_tables() if fused else None
         #: The fused step's table arguments and, after them, its full argument tail (kept
@@ -285,7 +301,8 @@ class ForceEstimator:
             self._terms, chain_tables(robot.model, robot.description.tip_frame),
             coupling=self._coupling, rotor=self._rotor, springs=self._springs,
             omega_v=self._omega_v, prefilter_stages=self._prefilter_stages, omega=self._omega,
-            omega_observer=self._omega_observer, observer=self._observer, lag=self._lag,
+            omega_observer=self._omega_observer, omega_output=self._omega_output,
+            observer=self._observer, lag=self._lag,
             sigma_min=self.sigma_min, tip=self._tip_kernel,
         )  # fmt: skip
 
@@ -371,7 +388,7 @@ class ForceEstimator:
         out = self._out
         finish_step(
             self._state, sample, self._omega, self._lag, self._observer, self._omega_observer,
-            RIGID_NONE if rigid is None else RIGID_MATRICES, self._v_model,
+            self._omega_output, RIGID_NONE if rigid is None else RIGID_MATRICES, self._v_model,
             mass, coriolis, gravity, self._coupling, self._rotor, self._springs,
             self._tip_kernel, jacobian, self._jacobian_motor, self.sigma_min, extra,
             self._scratch, out, *terms.arguments(),

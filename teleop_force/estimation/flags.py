@@ -16,7 +16,7 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the estimator's flags (each the model's value when absent).
 
     ``--estimator``, ``--observer-hz``, ``--observer-prefilter-hz``,
-    ``--observer-prefilter-stages``.
+    ``--observer-prefilter-stages``, ``--observer-output-hz``.
     """
     parser.add_argument(
         "--estimator", choices=ESTIMATORS, default=None,
@@ -37,6 +37,11 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         "--observer-prefilter-stages", type=int, choices=(1, 2), default=None,
         help="first-order stages of the observer's pre-filter (default: the model's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--observer-output-hz", type=float, default=None, metavar="HZ",
+        help="cutoff of the second-order Butterworth on the observer's estimate [Hz]; 0: none "
+        "(default: the model's)",
+    )  # fmt: skip
 
 
 #: The estimator flags and their ``argparse`` destinations (the ``FilterConfig`` fields they
@@ -46,6 +51,7 @@ _FLAGS = (
     ("--observer-hz", "observer_hz"),
     ("--observer-prefilter-hz", "observer_prefilter_hz"),
     ("--observer-prefilter-stages", "observer_prefilter_stages"),
+    ("--observer-output-hz", "observer_output_hz"),
 )
 
 

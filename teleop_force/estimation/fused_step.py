@@ -61,8 +61,8 @@ N_NETWORK_FLOAT_SLOTS = 4
 NI_INPUTS, NI_RUNS, NI_GRID_INTS = 0, 1, 2
 N_NETWORK_INT_SLOTS = 3
 # Entries of the scalar and flag slots.
-S_OMEGA_V, S_OMEGA, S_SIGMA_MIN, S_OMEGA_OBSERVER, S_STANDSTILL_BAND = 0, 1, 2, 3, 4
-N_SCALARS = 5
+S_OMEGA_V, S_OMEGA, S_SIGMA_MIN, S_OMEGA_OBSERVER, S_STANDSTILL_BAND, S_OMEGA_OUTPUT = range(6)
+N_SCALARS = 6
 G_LAG, G_RIGID, G_TIP, G_MODE, G_TIP_BODY, G_OBSERVER, G_PREFILTER_STAGES = 0, 1, 2, 3, 4, 5, 6
 N_FLAGS = 7
 #: Entries per slot in a header: offset, then three dimensions (unused ones are 1).
@@ -223,7 +223,7 @@ def fused_step(
         )  # fmt: skip
     finish_step(
         state, sample, scalars[S_OMEGA], flags[G_LAG], flags[G_OBSERVER] != 0,
-        scalars[S_OMEGA_OBSERVER], rigid_mode, v_model, momenta,
+        scalars[S_OMEGA_OBSERVER], scalars[S_OMEGA_OUTPUT], rigid_mode, v_model, momenta,
         momenta, momenta[0], coupling,
         _v1(floats, ints, F_ROTOR), _v2(floats, ints, F_SPRINGS), tip, jacobian,
         jacobian_motor, scalars[S_SIGMA_MIN], work[:0], scratch, out, flags[G_MODE],
@@ -282,6 +282,7 @@ class StepTables:
         prefilter_stages: int,
         omega: float,
         omega_observer: float,
+        omega_output: float,
         observer: bool,
         lag: int,
         sigma_min: float,
@@ -303,6 +304,7 @@ class StepTables:
         scalars[S_OMEGA] = omega
         scalars[S_SIGMA_MIN] = sigma_min
         scalars[S_OMEGA_OBSERVER] = omega_observer
+        scalars[S_OMEGA_OUTPUT] = omega_output
         scalars[S_STANDSTILL_BAND] = terms.standstill_band_rad_s
         flags = np.zeros(N_FLAGS, dtype=np.int64)
         flags[G_LAG] = lag

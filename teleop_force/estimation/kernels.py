@@ -39,7 +39,10 @@ import numpy as np
 
 from teleop_force.compiled import njit_cached
 from teleop_force.errors import ModelError
-from teleop_force.estimation.momentum_observer import observer_update_into
+from teleop_force.estimation.momentum_observer import (
+    butterworth_step_into,
+    observer_update_into,
+)
 from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     coverage_trust_into,
@@ -70,7 +73,7 @@ STATE_HEAD = 3
 
 def state_size(n: int) -> int:
     """Length of the estimator state (head, filters, q, qd, observer; see prefilter_step)."""
-    return STATE_HEAD + 12 * n
+    return STATE_HEAD + 15 * n
 
 
 def output_size(n: int) -> int:
@@ -516,9 +519,10 @@ def prefilter_step(
 
     ``sample`` is ``[t, q (n), tau (n)]``; ``state`` (:func:`state_size`) holds
     ``[has previous, previous t, first t, pre-filter (2 n), L state (4 n), q (n), qd (n),
-    observer state (2 n), first stage (2 n)]``. The pre-filter is ``stages`` (1 or 2)
-    first-order low-passes at ``omega_v`` [rad/s] in cascade (the first stage's state last,
-    so the filtered angles and torques stay where one stage keeps them).
+    observer state (2 n), first stage (2 n), output filter (3 n)]``. The pre-filter is
+    ``stages`` (1 or 2) first-order low-passes at ``omega_v`` [rad/s] in cascade (the first
+    stage's state after the observer's, so the filtered angles and torques stay where one
+    stage keeps them).
     Writes ``q_model = T q_v``, ``v_model = T qd`` and ``q_jacobian = T q`` (raw angles).
     Returns a status (``STEP_*``); on an error the state is untouched.
     """
@@ -566,6 +570,7 @@ def finish_step(
     lag: int,
     observer: bool,
     omega_observer: float,
+    omega_output: float,
     rigid: int,
     v_model: np.ndarray,
     mass: np.ndarray,
@@ -607,8 +612,11 @@ def finish_step(
     standstill ramp applied). ``scratch``: 7 n + the effects' work.
     ``observer``: ``tau_ext`` is the momentum observer's residual at bandwidth
     ``omega_observer`` [rad/s] (:func:`~teleop_force.estimation.momentum_observer.
-    observer_update_into`, its state the last 2 n of ``state``) and ``tau_model`` is
-    ``tau_L - tau_ext``; else ``tau_ext = tau_L - tau_model`` of the filtered dynamics.
+    observer_update_into`, its state ``state[STATE_HEAD + 8 n : + 10 n]``), then, if
+    ``omega_output`` [rad/s] > 0, the second-order Butterworth at it (:func:`~teleop_force.
+    estimation.momentum_observer.butterworth_step_into`, its state the last 3 n of
+    ``state``), and ``tau_model`` is ``tau_L - tau_ext``; else ``tau_ext = tau_L -
+    tau_model`` of the filtered dynamics.
     ``out`` (:func:`output_size`): ``[F, tau_ext, tau_L, tau_model, weight, singular]``.
     """
     n = coupling.shape[1]
@@ -687,6 +695,10 @@ def finish_step(
             x_head[:n], tau_v, x_head[n:], other, dt, omega_observer, lag, first, p_hat, drive,
             tau_ext,
         )  # fmt: skip
+        if omega_output > 0.0:
+            butterworth_step_into(
+                tau_ext, state[STATE_HEAD + 12 * n : STATE_HEAD + 15 * n], omega_output, dt, first
+            )
         for k in range(n):
             tau_model[k] = tau_filtered[k] - tau_ext[k]
     else:

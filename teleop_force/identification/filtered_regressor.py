@@ -59,6 +59,13 @@ DEFAULT_STANDSTILL_BAND_RAD_S = 0.02
 #: None follows ``velocity_cutoff_hz``: what the observer ran on before it had its own).
 DEFAULT_OBSERVER_PREFILTER_HZ = 40.0
 DEFAULT_OBSERVER_PREFILTER_STAGES = 2
+#: No Butterworth on the observer's output by default. The observer at 400 Hz on two 80 Hz
+#: stages with a second-order Butterworth at 40 Hz on its output won on family one (7.48 %
+#: against 7.93 %) and held out on family two only by 0.02-0.13 points a seed, while on the
+#: dVRK MTM's measured free motion it raised the external torque left by the model (joint 5:
+#: 0.573 -> 0.594 of the joint's torque on the loop's trajectory, 0.997 -> 1.007 on the other
+#: one): an option (``--observer-output-hz``), docs/accuracy/low_speed.md.
+DEFAULT_OBSERVER_OUTPUT_HZ: float | None = None
 #: Stages the pre-filter may have.
 PREFILTER_STAGES = (1, 2)
 #: What a model file without these fields means: written before the observer existed, its
@@ -89,6 +96,8 @@ class FilterConfig:
             and torques; None: ``velocity_cutoff_hz`` (the ``filter`` estimator always runs on
             ``L_v``, as identification does).
         observer_prefilter_stages: First-order stages of that pre-filter (1 or 2).
+        observer_output_hz: Cutoff of a second-order Butterworth low-pass on the observer's
+            external torque [Hz]; None: none (the observer's own first-order lag only).
 
     """
 
@@ -101,6 +110,7 @@ class FilterConfig:
     standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
     observer_prefilter_hz: float | None = DEFAULT_OBSERVER_PREFILTER_HZ
     observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
+    observer_output_hz: float | None = DEFAULT_OBSERVER_OUTPUT_HZ
 
     def __post_init__(self) -> None:
         if not self.cutoff_hz > 0:
@@ -130,6 +140,9 @@ class FilterConfig:
             raise ConfigurationError(
                 f"observer_prefilter_stages must be 1 or 2, got {self.observer_prefilter_stages}"
             )
+        output_hz = self.observer_output_hz
+        if output_hz is not None and not (output_hz > 0 and math.isfinite(output_hz)):
+            raise ConfigurationError(f"observer_output_hz must be > 0, got {output_hz}")
 
     @property
     def observer(self) -> bool:
@@ -142,6 +155,11 @@ class FilterConfig:
         if self.observer_prefilter_hz is None:
             return self.velocity_cutoff_hz
         return self.observer_prefilter_hz
+
+    @property
+    def estimator_output_hz(self) -> float | None:
+        """Cutoff [Hz] of the Butterworth on the estimate: the observer's, None without one."""
+        return self.observer_output_hz if self.observer else None
 
     @property
     def estimator_prefilter(self) -> tuple[float, int]:
@@ -169,6 +187,8 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
     # absent in files written before the observer had its own pre-filter: it ran on L_v
     observer_prefilter_hz: Finite | None = None
     observer_prefilter_stages: Annotated[int, Meta(ge=1, le=2)] = LEGACY_OBSERVER_PREFILTER_STAGES
+    # absent in files written before the output filter: none
+    observer_output_hz: Finite | None = None
 
     def __post_init__(self) -> None:
         self.config()  # FilterConfig's own range checks, named after this entry
@@ -182,6 +202,7 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
                 standstill_band_rad_s=self.standstill_band_rad_s,
                 observer_prefilter_hz=self.observer_prefilter_hz,
                 observer_prefilter_stages=self.observer_prefilter_stages,
+                observer_output_hz=self.observer_output_hz,
             )  # fmt: skip
         except ConfigurationError as exc:
             raise ModelFileError(str(exc)) from None

@@ -127,8 +127,10 @@ class CascadeReference:
     The pre-filter (:attr:`~teleop_force.identification.filtered_regressor.FilterConfig.
     estimator_prefilter`: ``L_v``, or the observer's own stages) and ``L`` at ``cutoff_hz`` (at
     ``observer_hz`` for the momentum observer, whose response to an external torque is first
-    order) are first-order low-passes (:func:`~teleop_force.lowpass.lowpass_batch`); the output
-    is ``torque_lag_samples`` late.
+    order) are first-order low-passes (:func:`~teleop_force.lowpass.lowpass_batch`), then the
+    observer's output Butterworth if it has one (the estimator's own
+    :func:`~teleop_force.estimation.batch.output_filter_loop`); the output is
+    ``torque_lag_samples`` late.
     """
 
     config: FilterConfig = field(default_factory=FilterConfig)
@@ -144,6 +146,15 @@ class CascadeReference:
         for _ in range(stages):
             out = lowpass_batch(out, t, prefilter_hz)
         out = lowpass_batch(out, t, second_hz)
+        output_hz = config.estimator_output_hz
+        if output_hz is not None:
+            from teleop_force.estimation.batch import output_filter_loop
+
+            out = np.array(out, dtype=float)
+            starts = np.zeros(out.shape[0], dtype=bool)
+            starts[:1] = True
+            dt = np.full(out.shape[0], float(dt_s))
+            output_filter_loop(out, dt, starts, 2.0 * math.pi * output_hz)
         lag = int(config.torque_lag_samples)
         if lag > 0:
             out = np.concatenate([np.repeat(out[:1], lag, axis=0), out[:-lag]])

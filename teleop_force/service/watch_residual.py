@@ -36,11 +36,14 @@ DEFAULT_CONTEXT_SAMPLES: Final = 500
 
 
 def watch_estimator_model(model: DynamicModel) -> DynamicModel:
-    """Return ``model`` with the watch's estimator: the observer at 24 Hz on one stage at L_v."""
+    """Return ``model`` with the watch's estimator: the observer at 24 Hz on one stage at L_v.
+
+    Without an output filter: the observer's own first-order lag only.
+    """
     return with_estimator(
         model, "observer", WATCH_OBSERVER_HZ,
         observer_prefilter_hz=model.filter_config.velocity_cutoff_hz,
-        observer_prefilter_stages=1,
+        observer_prefilter_stages=1, observer_output_hz=0.0,
     )  # fmt: skip
 
 

@@ -145,10 +145,28 @@ def test_a_model_file_without_the_observer_prefilter_runs_the_observer_on_lv() -
     assert faster.estimator_prefilter == (35.0, 1)
 
 
+def test_a_model_file_without_the_output_filter_has_none() -> None:
+    """Files from before the observer's output Butterworth: their estimates had none."""
+    model = with_estimator(_model(), "observer", 400.0, observer_output_hz=40.0)
+    data = model.to_dict()
+    assert data["filter"]["observer_output_hz"] == 40.0  # written by this version
+    del data["filter"]["observer_output_hz"]
+    config = DynamicModel.from_dict(data).filter_config
+    assert config.observer_output_hz is None and config.estimator_output_hz is None
+    # recorded before the field: replayed without it, whatever the model says
+    metadata = {"model": "m.json", **estimator_metadata(model)}
+    assert with_recorded_estimator(_model(), metadata).filter_config.observer_output_hz == 40.0
+    del metadata["observer_output_hz"]
+    assert with_recorded_estimator(model, metadata).filter_config.observer_output_hz is None
+    none = with_estimator(model, observer_output_hz=0.0)
+    assert estimator_metadata(none)["observer_output_hz"] == "0.0"
+    assert with_estimator(model, "filter").filter_config.estimator_output_hz is None
+
+
 @pytest.mark.parametrize(
     ("key", "value"), [("estimator", "kalman"), ("observer_hz", 0.0), ("observer_hz", -1.0),
                        ("standstill_band_rad_s", -0.01), ("observer_prefilter_hz", 0.0),
-                       ("observer_prefilter_stages", 3)],
+                       ("observer_prefilter_stages", 3), ("observer_output_hz", -5.0)],
 )  # fmt: skip
 def test_a_bad_choice_in_the_model_file_is_named(key, value) -> None:
     data = _model().to_dict()
@@ -207,6 +225,10 @@ def test_estimator_flags_override_the_model() -> None:
     )  # fmt: skip
     assert estimator_from_args(model, prefilter).filter_config.estimator_prefilter == (30.0, 1)
     assert (chosen.filter_config.estimator, chosen.filter_config.observer_hz) == ("observer", 16)
+    output = parser.parse_args(["--observer-output-hz", "30"])
+    assert estimator_from_args(model, output).filter_config.observer_output_hz == 30.0
+    none = estimator_from_args(model, parser.parse_args(["--observer-output-hz", "0"]))
+    assert none.filter_config.observer_output_hz is None
     with pytest.raises(SystemExit):
         parser.parse_args(["--estimator", "kalman"])
 
@@ -218,13 +240,14 @@ def test_estimator_flags_forwarded_to_a_child_parse_back_the_same() -> None:
     assert forwarded_estimator_arguments(parser.parse_args([])) == ()
     given = parser.parse_args(
         ["--estimator", "observer", "--observer-hz", "16.5", "--observer-prefilter-hz", "30",
-         "--observer-prefilter-stages", "2"]
+         "--observer-prefilter-stages", "2", "--observer-output-hz", "35"]
     )  # fmt: skip
     assert given_estimator_flags(given) == {
         "estimator": "observer",
         "observer_hz": 16.5,
         "observer_prefilter_hz": 30.0,
         "observer_prefilter_stages": 2,
+        "observer_output_hz": 35.0,
     }
     words = forwarded_estimator_arguments(given)
     assert "--observer-prefilter-stages" in words

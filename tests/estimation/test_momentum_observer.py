@@ -4,10 +4,15 @@ import math
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from teleop_force.estimation.batch import BatchEstimator
 from teleop_force.estimation.estimator import ForceEstimator, with_estimator
-from teleop_force.estimation.momentum_observer import observer_gain, observer_update_into
+from teleop_force.estimation.momentum_observer import (
+    butterworth_step_into,
+    observer_gain,
+    observer_update_into,
+)
 from teleop_force.friction.coulomb_viscous import CoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig
@@ -47,7 +52,7 @@ def test_step_response_is_first_order_with_the_bandwidth(observer_hz) -> None:
     # a pre-filter far above the observer passes the step unchanged (a = exp(-2 pi 100))
     config = FilterConfig(
         velocity_cutoff_hz=1e5, estimator="observer", observer_hz=observer_hz,
-        observer_prefilter_hz=1e5,
+        observer_prefilter_hz=1e5, observer_output_hz=None,
     )  # fmt: skip
     model = _true_model(config)
     robot = Robot(model.description())
@@ -91,3 +96,41 @@ def test_observer_update_starts_at_the_momentum_and_integrates_the_drive() -> No
     gain = observer_gain(50.0, dt)
     assert gain == pytest.approx((1 - math.exp(-0.1)) / dt, rel=1e-14)
     np.testing.assert_allclose(residual, gain * dt * (tau - beta - friction))
+
+
+@pytest.mark.parametrize("output_hz", [10.0, 40.0])
+def test_the_output_filter_is_scipys_butterworth_on_the_observer(output_hz) -> None:
+    """At a constant 1 kHz the output filter is ``scipy.signal.butter(2, f)`` on the residual."""
+    config = FilterConfig(estimator="observer", observer_hz=200.0, observer_output_hz=None)
+    model = _true_model(config)
+    filtered = with_estimator(model, observer_output_hz=output_hz)
+    assert filtered.filter_config.observer_output_hz == output_hz
+    assert with_estimator(filtered, observer_output_hz=0.0).filter_config == config
+    session = teleoperation_protocol(1.5, seed=5)
+    t, q, tau = session.t_s, session.q_rad, session.tau_nm
+    tau = tau + np.where(t[:, None] > 0.7, 0.05, 0.0)  # a torque step on every joint
+    plain = BatchEstimator(model).estimate(t, q, tau).tau_external_nm
+    sos = signal.butter(2, output_hz, fs=1000.0, output="sos")
+    expected = signal.sosfilt(sos, plain, axis=0)  # at rest at the first sample (r = 0 there)
+    got = BatchEstimator(filtered).estimate(t, q, tau).tau_external_nm
+    np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-12)
+    assert np.max(np.abs(got - plain)) > 1e-3  # it does filter
+    streaming = ForceEstimator(filtered)
+    step = np.array([streaming.update(t[k], q[k], tau[k]).tau_external_nm for k in range(t.size)])
+    np.testing.assert_allclose(step, got, rtol=0.0, atol=1e-9)
+
+
+def test_the_output_filter_stays_bounded_across_a_gap() -> None:
+    """A 200 ms pause inside a stream (no restart) must not fold the filter back."""
+    values = np.zeros(3)
+    state = np.zeros(9)
+    omega = 2 * math.pi * 40.0
+    butterworth_step_into(values, state, omega, 0.0, True)  # at rest at 0, then a unit step
+    outputs = []
+    for dt in [1e-3] * 5 + [0.2] + [1e-3] * 200:
+        values[:] = 1.0
+        butterworth_step_into(values, state, omega, dt, False)
+        outputs.append(values[0])
+    assert np.all(np.isfinite(outputs))
+    assert max(outputs) < 1.05  # at most the step response's 4 % overshoot
+    assert outputs[5] == 1.0 and outputs[-1] == 1.0  # settled over the gap

@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from teleop_force.cli.main import build_parser
 from teleop_force.errors import ConfigurationError
@@ -56,7 +57,7 @@ def test_cascade_reference_lags_a_step() -> None:
     faster = CascadeReference(FilterConfig(estimator="filter", cutoff_hz=30.0))(force, 1e-3)
     on_lv = FilterConfig(
         estimator="observer", observer_hz=30.0, observer_prefilter_hz=20.0,
-        observer_prefilter_stages=1,
+        observer_prefilter_stages=1, observer_output_hz=None,
     )  # fmt: skip
     observer = CascadeReference(on_lv)(force, 1e-3)
     np.testing.assert_allclose(observer, faster)  # both first order at 30 Hz after L_v
@@ -64,6 +65,13 @@ def test_cascade_reference_lags_a_step() -> None:
     # the observer's own pre-filter: a second stage at the same cutoff lags more
     two = CascadeReference(dataclasses.replace(on_lv, observer_prefilter_stages=2))(force, 1e-3)
     assert two[110, 2] < observer[110, 2] and two[-1, 2] > 0.99
+    # the output Butterworth: scipy's second-order low-pass after the first-order lags
+    butter = CascadeReference(dataclasses.replace(on_lv, observer_output_hz=40.0))(force, 1e-3)
+    lags = np.concatenate([observer[1:], observer[-1:]])  # before the torque lag
+    sos = signal.butter(2, 40.0, fs=1000.0, output="sos")
+    expected = signal.sosfilt(sos, lags, axis=0)
+    np.testing.assert_allclose(butter, np.concatenate([expected[:1], expected[:-1]]), atol=1e-12)
+    assert butter[110, 2] < observer[110, 2] and butter[-1, 2] > 0.99
 
 
 def test_batch_estimate_takes_overrides() -> None:
