@@ -189,7 +189,7 @@ def main() -> None:
                 zero, zero, zero, delta, dt, starts, 2 * np.pi * config.observer_hz,
                 int(config.torque_lag_samples),
             )  # fmt: skip
-            if config.estimator_output_hz is not None:  # linear too
+            if config.estimator_output_hz > 0.0:  # linear too
                 output_filter_loop(change, dt, starts, 2 * np.pi * config.estimator_output_hz)
             tip, _ = estimator._tip_forces(jacobian, estimates.tau_external_nm + change)
             table.setdefault(name, []).append(

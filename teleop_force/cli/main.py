@@ -482,8 +482,6 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         args.wn_structure,
     )
     overrides: dict[str, object] = dict(given_estimator_flags(args))
-    if overrides.get("observer_output_hz") == 0:  # the flag's "none"
-        overrides["observer_output_hz"] = None
     results = run_accuracy(
         args.family, args.seeds, estimate=BatchEstimate(overrides), options=options, log=_log
     )

@@ -146,8 +146,7 @@ class BatchEstimator:
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
-        output_hz = config.estimator_output_hz
-        self._omega_output = 0.0 if output_hz is None else _TWO_PI * output_hz
+        self._omega_output = _TWO_PI * config.estimator_output_hz
         self._band = float(config.standstill_band_rad_s)
         robot = self.robot
         n = self.n

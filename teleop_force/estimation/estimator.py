@@ -119,8 +119,7 @@ def with_estimator(
 ) -> DynamicModel:
     """Return ``model`` with its filter configuration's estimator choice overridden.
 
-    ``None`` keeps the model's own value (``observer_output_hz`` 0: no output filter); the
-    result is ``model`` itself when nothing changes.
+    ``None`` keeps the model's own value; the result is ``model`` itself when nothing changes.
     Its ``to_dict`` records the estimator that made the estimates. Raises ConfigurationError
     for an unknown estimator or a bandwidth, band or number of stages out of range.
     """
@@ -135,16 +134,13 @@ def with_estimator(
             None if observer_prefilter_hz is None else float(observer_prefilter_hz)
         ),
         "observer_prefilter_stages": observer_prefilter_stages,
+        "observer_output_hz": None if observer_output_hz is None else float(observer_output_hz),
     }
     changes = {
         name: value
         for name, value in wanted.items()
         if value is not None and value != getattr(config, name)
     }
-    if observer_output_hz is not None:
-        output_hz = None if observer_output_hz == 0 else float(observer_output_hz)
-        if output_hz != config.observer_output_hz:
-            changes["observer_output_hz"] = output_hz
     if not changes:
         return model
     return dataclasses.replace(model, filter_config=dataclasses.replace(config, **changes))
@@ -179,7 +175,7 @@ def estimator_metadata(model: DynamicModel) -> dict[str, str]:
         "standstill_band_rad_s": repr(float(config.standstill_band_rad_s)),
         "observer_prefilter_hz": repr(float(config.observer_prefilter_cutoff_hz)),
         "observer_prefilter_stages": str(int(config.observer_prefilter_stages)),
-        "observer_output_hz": repr(float(config.observer_output_hz or 0.0)),
+        "observer_output_hz": repr(float(config.observer_output_hz)),
     }
 
 
@@ -188,7 +184,7 @@ def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> Dy
 
     A recording made before the observer had its own pre-filter names none: its observer ran
     on ``L_v`` (the model's ``velocity_cutoff_hz``, one stage); one made before the output
-    filter names none either: it had none (``observer_output_hz`` 0 means the same). Raises
+    filter names none either: it had none (``observer_output_hz`` 0). Raises
     ConfigurationError for metadata that is not a valid choice.
     """
     numbers: dict[str, float | None] = {}
@@ -275,8 +271,7 @@ class ForceEstimator:
         self._omega = _TWO_PI * config.cutoff_hz
         self._observer = config.observer
         self._omega_observer = _TWO_PI * config.observer_hz
-        output_hz = config.estimator_output_hz
-        self._omega_output = 0.0 if output_hz is None else _TWO_PI * output_hz
+        self._omega_output = _TWO_PI * config.estimator_output_hz
         self._allocate()
         self._tables = self._fused_tables() if fused else None
         #: The fused step's table arguments and, after them, its full argument tail (kept

@@ -64,8 +64,9 @@ DEFAULT_OBSERVER_PREFILTER_STAGES = 2
 #: against 7.93 %) and held out on family two only by 0.02-0.13 points a seed, while on the
 #: dVRK MTM's measured free motion it raised the external torque left by the model (joint 5:
 #: 0.573 -> 0.594 of the joint's torque on the loop's trajectory, 0.997 -> 1.007 on the other
-#: one): an option (``--observer-output-hz``), docs/accuracy/low_speed.md.
-DEFAULT_OBSERVER_OUTPUT_HZ: float | None = None
+#: one): an option (``--observer-output-hz``), docs/accuracy/low_speed.md. 0: none, as the
+#: standstill band's 0 is no band.
+DEFAULT_OBSERVER_OUTPUT_HZ = 0.0
 #: Stages the pre-filter may have.
 PREFILTER_STAGES = (1, 2)
 #: What a model file without these fields means: written before the observer existed, its
@@ -97,7 +98,7 @@ class FilterConfig:
             ``L_v``, as identification does).
         observer_prefilter_stages: First-order stages of that pre-filter (1 or 2).
         observer_output_hz: Cutoff of a second-order Butterworth low-pass on the observer's
-            external torque [Hz]; None: none (the observer's own first-order lag only).
+            external torque [Hz]; 0: none (the observer's own first-order lag only).
 
     """
 
@@ -110,7 +111,7 @@ class FilterConfig:
     standstill_band_rad_s: float = DEFAULT_STANDSTILL_BAND_RAD_S
     observer_prefilter_hz: float | None = DEFAULT_OBSERVER_PREFILTER_HZ
     observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
-    observer_output_hz: float | None = DEFAULT_OBSERVER_OUTPUT_HZ
+    observer_output_hz: float = DEFAULT_OBSERVER_OUTPUT_HZ
 
     def __post_init__(self) -> None:
         if not self.cutoff_hz > 0:
@@ -140,9 +141,10 @@ class FilterConfig:
             raise ConfigurationError(
                 f"observer_prefilter_stages must be 1 or 2, got {self.observer_prefilter_stages}"
             )
-        output_hz = self.observer_output_hz
-        if output_hz is not None and not (output_hz > 0 and math.isfinite(output_hz)):
-            raise ConfigurationError(f"observer_output_hz must be > 0, got {output_hz}")
+        if not (self.observer_output_hz >= 0 and math.isfinite(self.observer_output_hz)):
+            raise ConfigurationError(
+                f"observer_output_hz must be >= 0, got {self.observer_output_hz}"
+            )
 
     @property
     def observer(self) -> bool:
@@ -157,9 +159,9 @@ class FilterConfig:
         return self.observer_prefilter_hz
 
     @property
-    def estimator_output_hz(self) -> float | None:
-        """Cutoff [Hz] of the Butterworth on the estimate: the observer's, None without one."""
-        return self.observer_output_hz if self.observer else None
+    def estimator_output_hz(self) -> float:
+        """Cutoff [Hz] of the Butterworth on the estimate: the observer's; 0: none."""
+        return self.observer_output_hz if self.observer else 0.0
 
     @property
     def estimator_prefilter(self) -> tuple[float, int]:
@@ -188,7 +190,7 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
     observer_prefilter_hz: Finite | None = None
     observer_prefilter_stages: Annotated[int, Meta(ge=1, le=2)] = LEGACY_OBSERVER_PREFILTER_STAGES
     # absent in files written before the output filter: none
-    observer_output_hz: Finite | None = None
+    observer_output_hz: Finite = 0.0
 
     def __post_init__(self) -> None:
         self.config()  # FilterConfig's own range checks, named after this entry

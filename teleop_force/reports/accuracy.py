@@ -147,7 +147,7 @@ class CascadeReference:
             out = lowpass_batch(out, t, prefilter_hz)
         out = lowpass_batch(out, t, second_hz)
         output_hz = config.estimator_output_hz
-        if output_hz is not None:
+        if output_hz > 0.0:
             from teleop_force.estimation.batch import output_filter_loop
 
             out = np.array(out, dtype=float)

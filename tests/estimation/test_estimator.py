@@ -152,15 +152,15 @@ def test_a_model_file_without_the_output_filter_has_none() -> None:
     assert data["filter"]["observer_output_hz"] == 40.0  # written by this version
     del data["filter"]["observer_output_hz"]
     config = DynamicModel.from_dict(data).filter_config
-    assert config.observer_output_hz is None and config.estimator_output_hz is None
+    assert config.observer_output_hz == 0.0 and config.estimator_output_hz == 0.0
     # recorded before the field: replayed without it, whatever the model says
     metadata = {"model": "m.json", **estimator_metadata(model)}
     assert with_recorded_estimator(_model(), metadata).filter_config.observer_output_hz == 40.0
     del metadata["observer_output_hz"]
-    assert with_recorded_estimator(model, metadata).filter_config.observer_output_hz is None
+    assert with_recorded_estimator(model, metadata).filter_config.observer_output_hz == 0.0
     none = with_estimator(model, observer_output_hz=0.0)
     assert estimator_metadata(none)["observer_output_hz"] == "0.0"
-    assert with_estimator(model, "filter").filter_config.estimator_output_hz is None
+    assert with_estimator(model, "filter").filter_config.estimator_output_hz == 0.0
 
 
 @pytest.mark.parametrize(
@@ -228,7 +228,7 @@ def test_estimator_flags_override_the_model() -> None:
     output = parser.parse_args(["--observer-output-hz", "30"])
     assert estimator_from_args(model, output).filter_config.observer_output_hz == 30.0
     none = estimator_from_args(model, parser.parse_args(["--observer-output-hz", "0"]))
-    assert none.filter_config.observer_output_hz is None
+    assert none.filter_config.observer_output_hz == 0.0
     with pytest.raises(SystemExit):
         parser.parse_args(["--estimator", "kalman"])
 

@@ -52,7 +52,7 @@ def test_step_response_is_first_order_with_the_bandwidth(observer_hz) -> None:
     # a pre-filter far above the observer passes the step unchanged (a = exp(-2 pi 100))
     config = FilterConfig(
         velocity_cutoff_hz=1e5, estimator="observer", observer_hz=observer_hz,
-        observer_prefilter_hz=1e5, observer_output_hz=None,
+        observer_prefilter_hz=1e5, observer_output_hz=0.0,
     )  # fmt: skip
     model = _true_model(config)
     robot = Robot(model.description())
@@ -101,7 +101,7 @@ def test_observer_update_starts_at_the_momentum_and_integrates_the_drive() -> No
 @pytest.mark.parametrize("output_hz", [10.0, 40.0])
 def test_the_output_filter_is_scipys_butterworth_on_the_observer(output_hz) -> None:
     """At a constant 1 kHz the output filter is ``scipy.signal.butter(2, f)`` on the residual."""
-    config = FilterConfig(estimator="observer", observer_hz=200.0, observer_output_hz=None)
+    config = FilterConfig(estimator="observer", observer_hz=200.0, observer_output_hz=0.0)
     model = _true_model(config)
     filtered = with_estimator(model, observer_output_hz=output_hz)
     assert filtered.filter_config.observer_output_hz == output_hz

@@ -57,7 +57,7 @@ def test_cascade_reference_lags_a_step() -> None:
     faster = CascadeReference(FilterConfig(estimator="filter", cutoff_hz=30.0))(force, 1e-3)
     on_lv = FilterConfig(
         estimator="observer", observer_hz=30.0, observer_prefilter_hz=20.0,
-        observer_prefilter_stages=1, observer_output_hz=None,
+        observer_prefilter_stages=1, observer_output_hz=0.0,
     )  # fmt: skip
     observer = CascadeReference(on_lv)(force, 1e-3)
     np.testing.assert_allclose(observer, faster)  # both first order at 30 Hz after L_v
