@@ -480,6 +480,7 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         args.identify_protocol,
         args.friction,
         args.wn_structure,
+        args.trace_residual,
     )
     overrides: dict[str, object] = dict(given_estimator_flags(args))
     results = run_accuracy(
@@ -840,6 +841,12 @@ def _add_accuracy(subparsers: _Subparsers) -> None:
         help="friction to identify (default: the Omni's, as `teleop-force identify` fits it)",
     )
     _add_wn_structure(p)
+    p.add_argument(
+        "--trace-residual",
+        action="store_true",
+        help="before testing, add what the residual loop finds the identified model lacks on"
+        " its own free motion (as `teleop-force residual --model`)",
+    )
     add_estimator_arguments(p)
     _add_output(p, "folder for accuracy.md and accuracy.json", required=True)
     _add_json_flag(p, "print the figures as one JSON object")

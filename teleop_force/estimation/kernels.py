@@ -12,7 +12,8 @@ ForceEstimator`):
 * :func:`finish_step`: the rigid-body terms from pinocchio's ``M``, ``C``, ``g``
   (:func:`rigid_terms_into`), the second filter ``L``, friction (Coulomb-viscous term tables,
   or a wavelet network blended with its fallback by the coverage trust), offsets and found
-  effects (:func:`add_model_terms`, the friction ramped to 0 in the standstill band), the
+  effects (:func:`add_model_terms`, the friction and the effects' ``sgn(qd)`` ramped to 0 in
+  the standstill band), the
   external torque (the filtered dynamics, or the momentum observer of
   :mod:`teleop_force.estimation.momentum_observer`, as the model's filter configuration
   says) and ``F = J^-T tau_ext`` (:func:`tip_force_into`).
@@ -47,6 +48,7 @@ from teleop_force.friction.coverage import CoverageMap
 from teleop_force.friction.terms import (
     coverage_trust_into,
     linear_friction_torque_into,
+    standstill_factor,
     standstill_scale_into,
     term_velocity,
     trust_add,
@@ -114,9 +116,11 @@ def add_model_terms(
     ``mode``: no friction, a Coulomb-viscous term table (``linear_table`` = ``[rows | reach]``,
     (T, 2 n)), or a wavelet table blended with its fallback term table by the trust of the
     coverage grids (``grid_ints`` with no rows: trust 1), or a wavelet table added to its
-    fallback times that trust (``FRICTION_NETWORK_ON_FALLBACK``). The friction is ramped to 0
-    below the standstill band (:func:`~teleop_force.friction.terms.standstill_factor`; 0:
-    off). ``network`` (n) and ``work`` are scratch.
+    fallback times that trust (``FRICTION_NETWORK_ON_FALLBACK``). The friction, and the
+    direction-dependent part of the effects (their ``sgn(qd)``: friction the residual loop
+    found), are ramped to 0 below the standstill band
+    (:func:`~teleop_force.friction.terms.standstill_factor`; 0: off). ``network`` (n) and
+    ``work`` are scratch.
     """
     n = q.size
     for j in range(n):
@@ -141,10 +145,10 @@ def add_model_terms(
         else:
             for j in range(n):
                 other[j] = trust_blend(weight[j], network[j], other[j])
-    standstill_scale_into(qd, standstill_band_rad_s, other)
+    standstill = standstill_factor(qd, standstill_band_rad_s)
     for j in range(n):
-        other[j] += offsets[j]
-    add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, work, other)
+        other[j] = other[j] * standstill + offsets[j]
+    add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, standstill, work, other)
 
 
 class _CoverageGrids:

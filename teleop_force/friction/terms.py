@@ -15,8 +15,9 @@ friction models call it over samples, the streaming estimator once per sample
 * :func:`grid_density` and :func:`coverage_trust`: a coverage grid's smoothed density,
   multilinear between cell centres and 0 one cell outside (as ``scipy.ndimage.map_coordinates``
   with ``order=1, mode="grid-constant"``), and the smoothstep trust ramp over it;
-* :func:`standstill_factor`: the standstill dead band, a ramp of the friction torque to 0
-  while every joint is slower than a band (the Coulomb sign is unknown at rest).
+* :func:`standstill_factor`: the standstill dead band, a ramp of the friction torque (and
+  of found effects' direction factor) to 0 while every joint is slower than a band (the
+  Coulomb sign is unknown at rest).
 """
 
 from __future__ import annotations

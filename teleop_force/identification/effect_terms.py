@@ -221,13 +221,17 @@ def effect_basis_into(
     q: np.ndarray,
     qd: np.ndarray,
     tau: np.ndarray,
+    direction_scale: float,
     out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
     """Write one effect's basis at one sample to ``out[:size]``; return ``size``.
 
     ``codes`` is the effect's code row (:data:`CODE_COLUMNS`), ``floats`` the array its
     shape parameters start in. Modulation: ``sign`` multiplies by ``sgn(qd_joint)``,
-    ``positive`` by ``[qd_joint > 0]``, ``both`` appends the basis times ``sgn(qd_joint)``.
+    ``positive`` by ``[qd_joint > 0]``, ``both`` appends the basis times ``sgn(qd_joint)``;
+    each direction factor is times ``direction_scale`` (1 when fitting; the estimator's
+    standstill ramp, :func:`~teleop_force.friction.terms.standstill_factor`: at rest the
+    direction, like the Coulomb term's sign, is unknown).
     """
     shape = codes[_SHAPE]
     x = 0.0
@@ -239,11 +243,11 @@ def effect_basis_into(
         return size
     v = qd[codes[_JOINT]]
     if modulation == _BOTH:
-        s = sign(v)
+        s = sign(v) * direction_scale
         for i in range(size):
             out[size + i] = out[i] * s
         return 2 * size
-    factor = sign(v) if modulation == _SIGN else (1.0 if v > 0.0 else 0.0)
+    factor = (sign(v) if modulation == _SIGN else (1.0 if v > 0.0 else 0.0)) * direction_scale
     for i in range(size):
         out[i] *= factor
     return size
@@ -257,10 +261,14 @@ def effect_torque(
     q: np.ndarray,
     qd: np.ndarray,
     tau: np.ndarray,
+    direction_scale: float,
     work: np.ndarray,
 ) -> float:  # pragma: no cover - compiled
-    """One effect's torque ``basis @ coefficients`` at one sample (``work``: >= size floats)."""
-    size = effect_basis_into(codes, floats, t, q, qd, tau, work)
+    """One effect's torque ``basis @ coefficients`` at one sample (``work``: >= size floats).
+
+    ``direction_scale``: as :func:`effect_basis_into`'s.
+    """
+    size = effect_basis_into(codes, floats, t, q, qd, tau, direction_scale, work)
     start = codes[_COEFS]
     total = 0.0
     for i in range(size):
@@ -276,18 +284,19 @@ def add_effects_torque_into(
     q: np.ndarray,
     qd: np.ndarray,
     tau: np.ndarray,
+    direction_scale: float,
     work: np.ndarray,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Add every effect's torque at one sample to ``out`` (n,), spread by its reach.
 
     ``codes`` (E, 11) holds one code row per effect; their reach (n weights) starts at
-    ``floats[codes[e, reach]]``.
+    ``floats[codes[e, reach]]``. ``direction_scale``: as :func:`effect_basis_into`'s.
     """
     n = out.size
     for e in range(codes.shape[0]):
         row = codes[e]
-        value = effect_torque(row, floats, t, q, qd, tau, work)
+        value = effect_torque(row, floats, t, q, qd, tau, direction_scale, work)
         reach = row[_REACH]
         add_weighted_into(value, floats[reach : reach + n], out)
 
@@ -305,7 +314,7 @@ def effect_basis(
     size = codes[_SIZE]
     out = np.empty((q.shape[0], size))
     for k in range(q.shape[0]):
-        effect_basis_into(codes, floats, t[k], q[k], qd[k], tau[k], out[k])
+        effect_basis_into(codes, floats, t[k], q[k], qd[k], tau[k], 1.0, out[k])
     return out
 
 
@@ -325,7 +334,7 @@ def effects_torque(
     work = np.empty(largest)
     out = np.zeros(q.shape)
     for k in range(q.shape[0]):
-        add_effects_torque_into(codes, floats, t[k], q[k], qd[k], tau[k], work, out[k])
+        add_effects_torque_into(codes, floats, t[k], q[k], qd[k], tau[k], 1.0, work, out[k])
     return out
 
 

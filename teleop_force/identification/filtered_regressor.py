@@ -91,8 +91,9 @@ class FilterConfig:
         estimator: Which estimator turns the model into an external torque: ``filter``
             (``L`` on both sides of the dynamics) or ``observer`` (the momentum observer).
         observer_hz: Bandwidth of the momentum observer [Hz] (``K = 2 pi observer_hz``).
-        standstill_band_rad_s: Below this speed of every joint the friction torque ramps to 0
-            (``max_j |qd_j| / band``); 0: no dead band.
+        standstill_band_rad_s: Below this speed of every joint the friction torque, and the
+            direction-dependent part of found effects, ramp to 0 (``max_j |qd_j| / band``);
+            0: no dead band.
         observer_prefilter_hz: Cutoff of each stage of the observer's pre-filter of angles
             and torques; None: ``velocity_cutoff_hz`` (the ``filter`` estimator always runs on
             ``L_v``, as identification does).

@@ -9,6 +9,8 @@ For one family and seed (:func:`session_accuracy`):
    motion with slow stretches, :func:`~teleop_force.simulation.session.slow_stretch_protocol`)
    with the Omni's default friction and offsets, as ``teleop-force identify`` fits them
    (:func:`~teleop_force.robots.registry.robot_defaults`; ``friction=`` names another kind);
+   and, with ``trace_residual``, add what the residual loop finds that model lacks on
+   that same free motion (:func:`~teleop_force.residual.from_model.trace_from_model`);
 2. **simulate** 60 s of teleoperation touching a soft floor on the *same arm*
    (:func:`~teleop_force.simulation.floor_touch.floor_touch_protocol`, another session seed:
    other motion, other noise): never used to fit;
@@ -173,6 +175,10 @@ class AccuracyOptions:
             ``teleop-force identify`` fits it).
         wn_structure: The wavelet network's structure (one of
             :data:`~teleop_force.friction.kinds.WN_STRUCTURES`), as ``identify`` fits it.
+        trace_residual: Close the loop on the identification's free motion before testing:
+            the residual loop from the identified model
+            (:func:`~teleop_force.residual.from_model.trace_from_model`, as ``teleop-force
+            residual --model``) adds what that motion shows the model lacks.
 
     """
 
@@ -181,6 +187,7 @@ class AccuracyOptions:
     identify_protocol: str = DEFAULT_IDENTIFY_PROTOCOL
     friction: str | None = None
     wn_structure: str = WN_STRUCTURES[0]
+    trace_residual: bool = False
 
     def __post_init__(self) -> None:
         for name in ("identify_duration_s", "test_duration_s"):
@@ -215,6 +222,8 @@ class SessionAccuracy:
     nan_samples: int
     identify_wall_s: float
     simulate_wall_s: float
+    #: What the residual loop added on the free motion (``trace_residual``), one line each.
+    found_effects: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """Return the figures as a JSON-ready dict (NaN as ``None``)."""
@@ -335,8 +344,9 @@ def session_accuracy(
     options = options or AccuracyOptions()
     estimator = estimate if estimate is not None else BatchEstimate()
     started = perf_counter()
+    found: tuple[str, ...] = ()
     if model is None:
-        model, _ = identify_free_motion(
+        model, free = identify_free_motion(
             family,
             seed,
             options.identify_duration_s,
@@ -344,8 +354,12 @@ def session_accuracy(
             friction=options.friction,
             wn_structure=options.wn_structure,
         )
+        if options.trace_residual:
+            model, found = _trace_residual(model, free)
     identify_wall = perf_counter() - started
     log(f"family {family} seed {seed}: identified ({model.friction.kind}) in {identify_wall:.1f} s")
+    for line in found:
+        log(f"family {family} seed {seed}: the residual loop added {line}")
     started = perf_counter()
     test = floor_touch_protocol(
         options.test_duration_s,
@@ -373,6 +387,7 @@ def session_accuracy(
         identify_protocol=options.identify_protocol,
         identify_wall_s=round(identify_wall, 1),
         simulate_wall_s=round(simulate_wall, 1),
+        found_effects=found,
         **figures,  # type: ignore[arg-type]
     )
     log(
@@ -381,6 +396,22 @@ def session_accuracy(
         f" contact error {result.contact_error_pct:.2f} %"
     )
     return result
+
+
+def _trace_residual(
+    model: DynamicModel, free: SimulatedSession
+) -> tuple[DynamicModel, tuple[str, ...]]:
+    """Return the model with what the residual loop finds on its free motion, and those lines."""
+    from teleop_force.residual.from_model import trace_from_model
+
+    report = trace_from_model([_recording(free)], model)
+    lines = tuple(
+        f"{traced.spec.describe()} ({100 * traced.explained:.0f} % of the residual, held out)"
+        for traced in report.effects
+    )
+    if report.payload is not None:
+        lines += ("a payload (the last link's inertial parameters)",)
+    return report.model, lines
 
 
 def run_accuracy(
@@ -461,6 +492,17 @@ def write_accuracy_report(
         accuracy_table(results),
         "",
     ]
+    if options.trace_residual:
+        lines += [
+            "The residual loop ran on each identification's free motion before the test"
+            " (`--trace-residual`) and added:",
+            "",
+            *(
+                f"- {r.family} seed {r.seed}: " + ("; ".join(r.found_effects) or "nothing")
+                for r in results
+            ),
+            "",
+        ]
     markdown = folder / "accuracy.md"
     markdown.write_text("\n".join(lines))
     payload = {
@@ -469,6 +511,7 @@ def write_accuracy_report(
         "identify_protocol": options.identify_protocol,
         "friction": options.friction,
         "wn_structure": options.wn_structure,
+        "trace_residual": options.trace_residual,
         "sessions": [r.to_json() for r in results],
     }
     path = folder / "accuracy.json"

@@ -100,7 +100,7 @@ def test_effect_batch_streaming_and_reference_agree(shape, modulation, variable)
     streamed = np.zeros(q.shape)
     for k in range(q.shape[0]):
         add_effects_torque_into(table.codes, table.floats, t[k] - t[0], q[k], qd[k], tau[k],
-                                table.work, streamed[k])  # fmt: skip
+                                1.0, table.work, streamed[k])  # fmt: skip
     np.testing.assert_allclose(streamed, batch, rtol=0, atol=ATOL)
 
 
@@ -115,7 +115,7 @@ def test_all_effects_of_a_model_in_one_table():
     streamed = np.zeros(q.shape)
     for k in range(q.shape[0]):
         add_effects_torque_into(table.codes, table.floats, t[k] - t[0], q[k], qd[k], tau[k],
-                                table.work, streamed[k])  # fmt: skip
+                                1.0, table.work, streamed[k])  # fmt: skip
     expected = sum(e.torque(t, q, qd, tau) for e in effects)
     np.testing.assert_allclose(streamed, expected, rtol=0, atol=ATOL)
 

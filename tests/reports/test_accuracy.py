@@ -147,3 +147,28 @@ def test_the_network_structure_is_an_option() -> None:
     assert build_parser().parse_args(["accuracy", "-o", "x"]).wn_structure == "on-cv"
     identify = build_parser().parse_args(["identify", "d.csv", "-o", "m.json"])
     assert identify.wn_structure == "on-cv"
+
+
+def test_the_residual_loop_can_close_on_the_free_motion_first(tmp_path: Path) -> None:
+    options = AccuracyOptions(identify_duration_s=30.0, test_duration_s=5.0, trace_residual=True)
+    models = []
+
+    def estimate(model: object, session: SimulatedSession) -> np.ndarray:
+        models.append(model)
+        return BatchEstimate()(model, session)  # type: ignore[arg-type]
+
+    result = session_accuracy("one", 1, estimate=estimate, options=options)
+    plain, _ = identify_free_motion("one", 1, 30.0)
+    added = len(models[0].effects) - len(plain.effects)
+    assert added >= 1 and len(result.found_effects) == added  # what was found is what is tested
+    assert all("held out" in line for line in result.found_effects)
+    assert np.isfinite(result.contact_error_n)
+    markdown, path = write_accuracy_report([result], tmp_path, options)
+    assert "| one | 1 |" in markdown.read_text()
+    assert result.found_effects[0] in markdown.read_text()
+    payload = json.loads(path.read_text())
+    assert payload["trace_residual"] is True
+    assert payload["sessions"][0]["found_effects"] == list(result.found_effects)
+    args = build_parser().parse_args(["accuracy", "--trace-residual", "-o", "x"])
+    assert args.trace_residual
+    assert not build_parser().parse_args(["accuracy", "-o", "x"]).trace_residual
