@@ -338,10 +338,15 @@ def session_accuracy(
     ``estimate`` defaults to :class:`BatchEstimate` (no overrides); ``reference_filter`` to
     the :class:`CascadeReference` of the estimate's filters (``estimate.config(model)`` when
     the estimate has one, else the model's). ``model``: skip the identification (a model of
-    the same arm, identified elsewhere).
+    the same arm, identified elsewhere; ConfigurationError with ``options.trace_residual``,
+    which runs on the identification's motion).
     """
     family = PlantFamily.parse(family)
     options = options or AccuracyOptions()
+    if model is not None and options.trace_residual:
+        raise ConfigurationError(
+            "trace_residual runs on the identification's free motion: not with a given model"
+        )
     estimator = estimate if estimate is not None else BatchEstimate()
     started = perf_counter()
     found: tuple[str, ...] = ()

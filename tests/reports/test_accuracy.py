@@ -169,6 +169,8 @@ def test_the_residual_loop_can_close_on_the_free_motion_first(tmp_path: Path) ->
     payload = json.loads(path.read_text())
     assert payload["trace_residual"] is True
     assert payload["sessions"][0]["found_effects"] == list(result.found_effects)
+    with pytest.raises(ConfigurationError, match="trace_residual"):
+        session_accuracy("one", 1, options=options, model=plain)
     args = build_parser().parse_args(["accuracy", "--trace-residual", "-o", "x"])
     assert args.trace_residual
     assert not build_parser().parse_args(["accuracy", "-o", "x"]).trace_residual
