@@ -117,6 +117,12 @@ class BatchEstimates:
         """Return the number of samples."""
         return int(self.t_s.shape[0])
 
+    def rows(self, selection: slice) -> BatchEstimates:
+        """Return the estimates of the samples ``selection`` picks (every field alike)."""
+        return BatchEstimates(
+            *(getattr(self, name)[selection] for name in BatchEstimates.__dataclass_fields__)
+        )
+
 
 def stream_times_s(t_ns: np.ndarray, stream_starts: np.ndarray | None = None) -> np.ndarray:
     """Return the times [s] the service runs its estimator on: ``(t_ns - t0_ns) * 1e-9``.

@@ -280,7 +280,7 @@ def _run_service(model: DynamicModel, key: str, arrays: JointStateArrays) -> _Se
         last_error = f"non-finite estimate at seq {int(seq[estimated[done + e]])}"
         if errors > MAX_ERRORS:
             raise DataError(f"the model gives non-finite estimates ({last_error}, and more)")
-        parts.append(_head(result, e + 1))
+        parts.append(result.rows(slice(e + 1)))
         published[done + e] = False
         clock = saved  # the clock as it was after sample done + e, then reset (the service's)
         _advance(clock, stamps[: done + e + 1], restarted, done)
@@ -317,15 +317,6 @@ def _unpublishable(result: BatchEstimates) -> np.ndarray:
     return np.flatnonzero(~ok)
 
 
-def _head(result: BatchEstimates, rows: int) -> BatchEstimates:
-    """Return the first ``rows`` rows of ``result``."""
-    return BatchEstimates(
-        result.t_s[:rows], result.force_tip_in_base_n[:rows], result.tau_external_nm[:rows],
-        result.tau_motor_filtered_nm[:rows], result.tau_model_filtered_nm[:rows],
-        result.coverage_weight[:rows], result.on_trained_ground[:rows], result.singular[:rows],
-    )  # fmt: skip
-
-
 def _concatenate(parts: list[BatchEstimates], n: int) -> BatchEstimates:
     """Stack the rows of ``parts`` (no part: no rows)."""
     if not parts:
@@ -336,15 +327,8 @@ def _concatenate(parts: list[BatchEstimates], n: int) -> BatchEstimates:
         )  # fmt: skip
     if len(parts) == 1:
         return parts[0]
-    return BatchEstimates(
-        *(np.concatenate([getattr(p, name) for p in parts]) for name in _ESTIMATE_FIELDS)
-    )
-
-
-_ESTIMATE_FIELDS: Final = (
-    "t_s", "force_tip_in_base_n", "tau_external_nm", "tau_motor_filtered_nm",
-    "tau_model_filtered_nm", "coverage_weight", "on_trained_ground", "singular",
-)  # fmt: skip
+    fields = BatchEstimates.__dataclass_fields__
+    return BatchEstimates(*(np.concatenate([getattr(p, name) for p in parts]) for name in fields))
 
 
 def _write_estimates(

@@ -90,7 +90,4 @@ class WatchResidual:
         starts = np.flatnonzero(runs[1:] != runs[:-1]) + 1
         estimates = self._estimator.estimate(t, q, tau, starts, stream_time_s=t - run_start)
         self._context = tuple(x[-self.context_samples :] for x in parts)
-        skip = t.size - new[0].size
-        return BatchEstimates(
-            *(getattr(estimates, name)[skip:] for name in BatchEstimates.__dataclass_fields__)
-        )
+        return estimates.rows(slice(t.size - new[0].size, None))

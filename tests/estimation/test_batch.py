@@ -239,6 +239,10 @@ def test_a_restart_starts_from_scratch(palpation) -> None:
         np.testing.assert_array_equal(getattr(whole, name)[300:], getattr(alone, name))
     joined = estimator.estimate(t, q, tau)
     assert not np.array_equal(joined.tau_model_filtered_nm[300:], alone.tau_model_filtered_nm)
+    tail = whole.rows(slice(300, None))  # the rows of the second stream, every field alike
+    assert len(tail) == 300
+    for field in dataclasses.fields(whole):
+        np.testing.assert_array_equal(getattr(tail, field.name), getattr(alone, field.name))
 
 
 def test_singular_poses_are_flagged_as_the_streaming_estimator_does() -> None:
