@@ -66,13 +66,21 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
         return identify_teststand_command(recordings, description, friction, args.output, _log)
     offsets = defaults.offsets if args.offsets is None else args.offsets
+    sticking = (
+        defaults.sticking and friction is not FrictionKind.MODEL_CV
+        if args.sticking is None
+        else args.sticking
+    )
     model, report = identify_model(
         recordings,
         description,
         friction,
         wavelet=wavelet_options_for(args.wn_structure, args.wn_fit),
         offsets=offsets,
+        sticking=sticking,
     )
+    if sticking:
+        _log(f"sticking transition angle: {report.details['sticking_rad']:.3g} rad (0: sgn kept)")
     model.save(args.output)
     _log(report.rigid.table())
     _log(
@@ -481,6 +489,7 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         args.friction,
         args.wn_structure,
         args.trace_residual,
+        args.sticking,
     )
     overrides: dict[str, object] = dict(given_estimator_flags(args))
     results = run_accuracy(
@@ -566,6 +575,15 @@ def _add_identify(subparsers: _Subparsers) -> None:
         default=None,
         help="fit a constant torque per joint (default: the robot's: on for dvrk-mtm and"
         " none, else off)",
+    )
+    p.add_argument(
+        "--sticking",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="look for a sticking (Dahl) state of the Coulomb terms of the CV friction (wn: of"
+        " its fallback), its transition angle fitted on the recordings, kept only if it fits"
+        " them better than sgn(qd) (it then replaces the standstill dead band); not with"
+        " model-cv. Default: the robot's (on for omni, else off)",
     )
     p.add_argument(
         "--wn-fit",
@@ -846,6 +864,13 @@ def _add_accuracy(subparsers: _Subparsers) -> None:
         action="store_true",
         help="before testing, add what the residual loop finds the identified model lacks on"
         " its own free motion (as `teleop-force residual --model`)",
+    )
+    p.add_argument(
+        "--sticking",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="identify with or without looking for a sticking state of the Coulomb terms"
+        " (`identify --sticking`; default: as `identify` does for the Omni, on)",
     )
     add_estimator_arguments(p)
     _add_output(p, "folder for accuracy.md and accuracy.json", required=True)

@@ -62,7 +62,7 @@ from teleop_force.estimation.rigid_chain import (
     chain_tables,
     chain_terms_batch,
 )
-from teleop_force.friction.terms import standstill_factors
+from teleop_force.friction.terms import standstill_factors, sticking_states
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.least_squares import relative_rms
 from teleop_force.io.interchange_csv import Recording
@@ -217,7 +217,7 @@ class BatchEstimator:
                 since_start = np.ascontiguousarray(stream_time_s, dtype=float).reshape(-1)
                 if since_start.shape != t.shape:
                     raise DataError(f"stream_time_s must have {t.size} values")
-            other, weight = self._model_terms(since_start, q_v, qd, load, pool)
+            other, weight = self._model_terms(since_start, q_v, qd, load, pool, starts)
             tau_filtered, tau_model, tau_ext = _output_filter(
                 other, tau_v, load, dt, starts, self._omega, self._lag,
             )  # fmt: skip
@@ -260,6 +260,7 @@ class BatchEstimator:
         qd: np.ndarray,
         load: np.ndarray,
         pool: ThreadPoolExecutor,
+        starts: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Friction (coverage blend) + offsets + found effects, and the coverage weight.
 
@@ -267,7 +268,8 @@ class BatchEstimator:
         (:func:`~teleop_force.estimation.kernels.add_model_terms`) in a compiled loop, in
         blocks on the ``pool``'s threads (each with its own scratch; the kernel releases the
         GIL); a friction without a term encoding by its batch methods, added as the estimator
-        adds it.
+        adds it. A sticking state (it follows the path) is run first, sequentially, over
+        every stream (``starts``), as the streaming estimator advances it.
         """
         n_samples = t_s.size
         blocks = max(1, min(_threads(), n_samples // _MIN_SAMPLES_PER_THREAD))
@@ -279,10 +281,18 @@ class BatchEstimator:
             (slice(a, b), block.work, block.arguments())
             for (a, b), block in zip(itertools.pairwise(bounds.tolist()), terms, strict=True)
         ]
+        sticking = np.zeros((n_samples, 0))
+        if terms[0].sticking_inv_rad > 0.0:
+            rows = np.ascontiguousarray(jobs[0][2][2][:, : self.n])
+            sticking = sticking_states(
+                np.ascontiguousarray(q_v), rows, terms[0].sticking_inv_rad, starts
+            )
 
         def run(job: tuple[slice, np.ndarray, tuple[Any, ...]]) -> tuple[np.ndarray, np.ndarray]:
             rows, work, arguments = job
-            return _terms_loop(t_s[rows], q_v[rows], qd[rows], load[rows], work, arguments)
+            return _terms_loop(
+                t_s[rows], q_v[rows], qd[rows], load[rows], sticking[rows], work, arguments
+            )
 
         if blocks == 1:
             other, weight = run(jobs[0])
@@ -501,16 +511,23 @@ def _terms_loop(
     q: np.ndarray,
     qd: np.ndarray,
     load: np.ndarray,
+    sticking: np.ndarray,
     work: np.ndarray,
     arguments: tuple[Any, ...],
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """:func:`~teleop_force.estimation.kernels.add_model_terms` at every sample."""
+    """:func:`~teleop_force.estimation.kernels.add_model_terms` at every sample.
+
+    ``sticking``: the sticking states of every sample (N, T), or (N, 0) without.
+    """
     n_samples, n = q.shape
     other = np.empty((n_samples, n))
     weight = np.empty((n_samples, n))
     network = np.empty(n)
     for k in range(n_samples):
-        add_model_terms(t[k], q[k], qd[k], load[k], other[k], weight[k], network, work, *arguments)
+        add_model_terms(
+            t[k], q[k], qd[k], load[k], other[k], weight[k], network, work, sticking[k],
+            *arguments,
+        )  # fmt: skip
     return other, weight
 
 

@@ -317,7 +317,7 @@ class ForceEstimator:
         self._springs = spring_table(
             [s.joint for s in springs], self.spring_stiffness, [s.rest_angle_rad for s in springs]
         )
-        self._state = np.zeros(state_size(n))
+        self._state = np.zeros(state_size(n, self._terms.sticking_terms))
         self._qd_slice = slice(STATE_HEAD + 7 * n, STATE_HEAD + 8 * n)
         self._sample = np.zeros(1 + 2 * n)
         self._q_model = np.zeros(n_model)

@@ -61,8 +61,11 @@ N_NETWORK_FLOAT_SLOTS = 4
 NI_INPUTS, NI_RUNS, NI_GRID_INTS = 0, 1, 2
 N_NETWORK_INT_SLOTS = 3
 # Entries of the scalar and flag slots.
-S_OMEGA_V, S_OMEGA, S_SIGMA_MIN, S_OMEGA_OBSERVER, S_STANDSTILL_BAND, S_OMEGA_OUTPUT = range(6)
-N_SCALARS = 6
+(
+    S_OMEGA_V, S_OMEGA, S_SIGMA_MIN, S_OMEGA_OBSERVER, S_STANDSTILL_BAND, S_OMEGA_OUTPUT,
+    S_STICKING_INV,
+) = range(7)  # fmt: skip
+N_SCALARS = 7
 G_LAG, G_RIGID, G_TIP, G_MODE, G_TIP_BODY, G_OBSERVER, G_PREFILTER_STAGES = 0, 1, 2, 3, 4, 5, 6
 N_FLAGS = 7
 #: Entries per slot in a header: offset, then three dimensions (unused ones are 1).
@@ -236,7 +239,7 @@ def fused_step(
         _v2(network_floats, network_ints, NF_GRID_FLOATS),
         _v1(network_floats, network_ints, NF_GRID_VALUES),
         _v2(ints, ints, N_FLOAT_SLOTS + I_EFFECT_CODES),
-        _v1(floats, ints, F_EFFECT_FLOATS), scalars[S_STANDSTILL_BAND],
+        _v1(floats, ints, F_EFFECT_FLOATS), scalars[S_STANDSTILL_BAND], scalars[S_STICKING_INV],
     )  # fmt: skip
     return STEP_OK
 
@@ -306,6 +309,7 @@ class StepTables:
         scalars[S_OMEGA_OBSERVER] = omega_observer
         scalars[S_OMEGA_OUTPUT] = omega_output
         scalars[S_STANDSTILL_BAND] = terms.standstill_band_rad_s
+        scalars[S_STICKING_INV] = terms.sticking_inv_rad
         flags = np.zeros(N_FLAGS, dtype=np.int64)
         flags[G_LAG] = lag
         flags[G_RIGID] = 1

@@ -13,7 +13,7 @@ ForceEstimator`):
   (:func:`rigid_terms_into`), the second filter ``L``, friction (Coulomb-viscous term tables,
   or a wavelet network blended with its fallback by the coverage trust), offsets and found
   effects (:func:`add_model_terms`, the friction and the effects' ``sgn(qd)`` ramped to 0 in
-  the standstill band), the
+  the standstill band, or the Coulomb terms' sticking state advanced instead), the
   external torque (the filtered dynamics, or the momentum observer of
   :mod:`teleop_force.estimation.momentum_observer`, as the model's filter configuration
   says) and ``F = J^-T tau_ext`` (:func:`tip_force_into`).
@@ -50,13 +50,15 @@ from teleop_force.friction.terms import (
     linear_friction_torque_into,
     standstill_factor,
     standstill_scale_into,
+    sticking_friction_torque_into,
+    sticking_update_into,
     term_velocity,
     trust_add,
     trust_blend,
     wavelet_network_torque_into,
 )
 from teleop_force.friction.wavelet_network import WaveletNetwork
-from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.dynamic_model import DynamicModel, sticking_rad_of
 from teleop_force.identification.effect_terms import add_effects_torque_into
 from teleop_force.identification.effects import effects_table
 
@@ -73,9 +75,13 @@ STEP_OK, STEP_NON_FINITE, STEP_TIME_NOT_INCREASING = 0, 1, 2
 STATE_HEAD = 3
 
 
-def state_size(n: int) -> int:
-    """Length of the estimator state (head, filters, q, qd, observer; see prefilter_step)."""
-    return STATE_HEAD + 15 * n
+def state_size(n: int, sticking_terms: int = 0) -> int:
+    """Length of the estimator state (head, filters, q, qd, observer; see prefilter_step).
+
+    ``sticking_terms``: the terms of a friction with a sticking state, whose state
+    (:func:`~teleop_force.friction.terms.sticking_update_into`) ends the estimator's.
+    """
+    return STATE_HEAD + 15 * n + (1 + 2 * sticking_terms if sticking_terms > 0 else 0)
 
 
 def output_size(n: int) -> int:
@@ -96,6 +102,7 @@ def add_model_terms(
     weight: np.ndarray,
     network: np.ndarray,
     work: np.ndarray,
+    sticking_z: np.ndarray,
     mode: int,
     offsets: np.ndarray,
     linear_table: np.ndarray,
@@ -110,6 +117,7 @@ def add_model_terms(
     effect_codes: np.ndarray,
     effect_floats: np.ndarray,
     standstill_band_rad_s: float,
+    sticking_inv_rad: float,
 ) -> None:  # pragma: no cover - compiled
     """Write friction + offsets + found effects to ``other`` and the coverage trust to ``weight``.
 
@@ -119,7 +127,11 @@ def add_model_terms(
     fallback times that trust (``FRICTION_NETWORK_ON_FALLBACK``). The friction, and the
     direction-dependent part of the effects (their ``sgn(qd)``: friction the residual loop
     found), are ramped to 0 below the standstill band
-    (:func:`~teleop_force.friction.terms.standstill_factor`; 0: off). ``network`` (n) and
+    (:func:`~teleop_force.friction.terms.standstill_factor`; 0: off). With a sticking state
+    (``sticking_inv_rad`` = 1 / the transition angle > 0) the term table's ``sgn(w_t)`` are
+    its Dahl states ``sticking_z`` (T, advanced by the caller) and the term table's friction is
+    not ramped (the state holds the friction at rest); a network's part and the effects still
+    are. ``network`` (n) and
     ``work`` are scratch.
     """
     n = q.size
@@ -128,26 +140,37 @@ def add_model_terms(
         weight[j] = 1.0
     rows = linear_table[:, :n]
     reach = linear_table[:, n:]
+    sticking = sticking_inv_rad > 0.0
+    standstill = standstill_factor(qd, standstill_band_rad_s)
     if mode == FRICTION_LINEAR:
-        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
+        if sticking:
+            sticking_friction_torque_into(qd, rows, reach, linear_parameters, sticking_z, other)
+        else:
+            linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
     elif mode >= FRICTION_NETWORK:  # a network, blended with or added to its fallback
         for j in range(n):
             network[j] = 0.0
         wavelet_network_torque_into(
             qd, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, network
         )
-        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)  # the fallback
+        if sticking:  # the fallback
+            sticking_friction_torque_into(qd, rows, reach, linear_parameters, sticking_z, other)
+        else:
+            linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
         if grid_ints.shape[0] > 0:
             coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
+        if sticking:  # the network's part is ramped, the fallback's sticking part is not
+            for j in range(n):
+                network[j] = network[j] * standstill
         if mode == FRICTION_NETWORK_ON_FALLBACK:
             for j in range(n):
                 other[j] = trust_add(weight[j], network[j], other[j])
         else:
             for j in range(n):
                 other[j] = trust_blend(weight[j], network[j], other[j])
-    standstill = standstill_factor(qd, standstill_band_rad_s)
+    friction_scale = 1.0 if sticking else standstill
     for j in range(n):
-        other[j] = other[j] * standstill + offsets[j]
+        other[j] = other[j] * friction_scale + offsets[j]
     add_effects_torque_into(effect_codes, effect_floats, t, q, qd, load, standstill, work, other)
 
 
@@ -205,7 +228,9 @@ class ModelTerms:
     band last, from its filter configuration), following later
     changes of the model's friction: new parameters (read live), a network's new structure or
     coefficients, a replaced fallback or coverage map, new coverage counts. Calling the object
-    evaluates one sample (tests and one-off use; the estimator calls the step kernels).
+    evaluates one sample (tests and one-off use; the estimator calls the step kernels); with a
+    sticking state, successive calls are successive samples of one stream
+    (:meth:`reset_sticking` begins another).
     """
 
     def __init__(self, model: DynamicModel) -> None:
@@ -231,6 +256,14 @@ class ModelTerms:
         self._network_arguments: tuple[Any, ...] | None = None
         self._psi = np.zeros(0)  # the wavelets' scratch
         self._versions: tuple[int, int, int] = (-1, -1, -1)
+        table_friction = self.friction if self.network is None else self.network.fallback
+        sticking_table = _term_table(table_friction, n)
+        rad = 0.0 if sticking_table is None else sticking_rad_of(self.friction)
+        #: ``1 / transition angle`` [1/rad] of the term table's sticking state (0: none), and
+        #: its number of terms (the state's size, :func:`state_size`). Read here, once.
+        self.sticking_inv_rad = 1.0 / rad if rad > 0.0 else 0.0
+        self.sticking_terms = 0 if sticking_table is None or rad == 0.0 else sticking_table.shape[0]
+        self._sticking_state = np.zeros(1 + 2 * self.sticking_terms)
         self._fixed: tuple[Any, ...] = (
             FRICTION_NONE if self._linear is None else FRICTION_LINEAR,
             model.offsets_nm,
@@ -239,6 +272,7 @@ class ModelTerms:
             _NO_WAVELET_INPUTS, _NO_FLOATS, _NO_RUNS, _NO_VALUES, _NO_INTS, _NO_FLOATS,
             _NO_VALUES,
             self.effect_codes, self.effect_floats, self.standstill_band_rad_s,
+            self.sticking_inv_rad,
         )  # fmt: skip
 
     def _refresh_network(self, network: WaveletNetwork) -> None:
@@ -249,6 +283,9 @@ class ModelTerms:
         table = _term_table(fallback, self.n)
         if table is None:
             raise ModelError(f"wn: fallback {fallback.kind} has no Coulomb-viscous terms")
+        rad = sticking_rad_of(fallback)
+        if (1.0 / rad if rad > 0.0 else 0.0) != self.sticking_inv_rad:
+            raise ModelError("wn: a new fallback may not change the sticking transition angle")
         self._fallback, self._fallback_table = fallback, table
         coverage = network.coverage
         self._coverage = coverage
@@ -289,9 +326,13 @@ class ModelTerms:
                 self.model.offsets_nm, self._fallback_table,
                 self._fallback.parameters, inputs, wavelets, runs, self._psi, grid_ints,
                 grid_floats, values, self.effect_codes, self.effect_floats,
-                self.standstill_band_rad_s,
+                self.standstill_band_rad_s, self.sticking_inv_rad,
             )  # fmt: skip
         return arguments
+
+    def reset_sticking(self) -> None:
+        """Begin a new stream of the sticking state of :meth:`__call__` (``z = 0``)."""
+        self._sticking_state[:] = 0.0
 
     def python_terms(self, qd: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Friction torque and coverage weight (n each) of a friction without term encoding.
@@ -317,10 +358,15 @@ class ModelTerms:
         n = self.n
         io = self._io
         io[: 1 + 3 * n] = [t, *q, *qd, *load]
+        arguments = self.arguments()
+        state = self._sticking_state
+        if self.sticking_inv_rad > 0.0:
+            rows = np.ascontiguousarray(arguments[2][:, :n])
+            sticking_update_into(io[1 : 1 + n], rows, self.sticking_inv_rad, state)
         add_model_terms(
             t, io[1 : 1 + n], io[1 + n : 1 + 2 * n], io[1 + 2 * n : 1 + 3 * n],
             io[1 + 3 * n : 1 + 4 * n], io[1 + 4 * n : 1 + 5 * n], io[1 + 5 * n : 1 + 6 * n],
-            io[1 + 6 * n :], *self.arguments(),
+            io[1 + 6 * n :], state[1 + self.sticking_terms :], *arguments,
         )  # fmt: skip
         out = io[self._out].tolist()
         other, weight = out[:n], out[n:]
@@ -604,6 +650,7 @@ def finish_step(
     effect_codes: np.ndarray,
     effect_floats: np.ndarray,
     standstill_band_rad_s: float,
+    sticking_inv_rad: float,
 ) -> None:  # pragma: no cover - compiled
     """Rigid body, the filter ``L``, the model's terms, ``tau_ext`` and ``F`` at one sample.
 
@@ -622,6 +669,8 @@ def finish_step(
     ``state``), and ``tau_model`` is ``tau_L - tau_ext``; else ``tau_ext = tau_L -
     tau_model`` of the filtered dynamics.
     ``out`` (:func:`output_size`): ``[F, tau_ext, tau_L, tau_model, weight, singular]``.
+    With ``sticking_inv_rad`` > 0, the sticking state (:func:`state_size`) ends ``state`` and
+    advances with the pre-filtered angles before the model's terms.
     """
     n = coupling.shape[1]
     first = state[0] == 0.0
@@ -669,11 +718,15 @@ def finish_step(
                 load[k] = (stage2[k] - previous) / dt
         for k in range(n):
             load[k] += stage2[n + k]
+    sticking = state[STATE_HEAD + 15 * n :]
+    if sticking_inv_rad > 0.0:
+        sticking_update_into(q, linear_table[:, :n], sticking_inv_rad, sticking)
     add_model_terms(
-        t - state[2], q, qd, load, other, weight, network, work, mode, offsets, linear_table,
+        t - state[2], q, qd, load, other, weight, network, work,
+        sticking[1 + linear_table.shape[0] :], mode, offsets, linear_table,
         linear_parameters, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, grid_ints,
         grid_floats, grid_values,
-        effect_codes, effect_floats, standstill_band_rad_s,
+        effect_codes, effect_floats, standstill_band_rad_s, sticking_inv_rad,
     )  # fmt: skip
     if extra.size > 0:
         for k in range(n):

@@ -31,7 +31,8 @@ friction is that CV, and the identification says so in one ``warning`` line inst
 refusing. Held-out figures: :mod:`teleop_force.reports.teststand_heldout`.
 
 Sticking (``TeststandOptions.sticking``, CV friction only): the Coulomb term's ``sgn(qd)`` is
-replaced by a Dahl state ``z`` of the pre-filtered angle, ``dz/dq = (1 - z sgn(dq)) / phi``,
+replaced by a Dahl state ``z`` of the pre-filtered angle, ``dz/dq = (1 - z sgn(dq)) / phi``
+(the sticking state of :mod:`teleop_force.friction.terms`),
 which reaches +-1 within the transition angle ``phi`` of motion and keeps its value at rest:
 a leg standing under load keeps the friction of its last motion instead of none (the dead band)
 or a sign picked by velocity noise. ``phi`` is identified with the rest on the samples without
@@ -51,7 +52,12 @@ import numpy as np
 
 from teleop_force.errors import ConfigurationError, DataError, SingularityError
 from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.coulomb_viscous import (
+    STICKING_RANGE_RAD,
+    CoulombViscous,
+    CoupledCoulombViscous,
+)
+from teleop_force.friction.terms import sticking_states
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
 from teleop_force.identification.prepared import PreparedRecording, prepare
@@ -73,9 +79,6 @@ _DIRECTIONAL_STEP = 1e-5
 STANDSTILL_BAND_RAD_S = 0.05
 #: Friction models the test stand is identified with.
 FRICTION_KINDS = ("cv", "coupled-cv", "wn")
-#: Range [rad] searched for the sticking (Dahl) transition angle: from a few encoder counts
-#: (3e-5 rad at the joint) to a tenth of a radian, where it is no longer sticking.
-STICKING_RANGE_RAD = (1e-4, 1e-1)
 
 
 @dataclass(frozen=True)
@@ -174,24 +177,16 @@ def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -
 def dahl_state(q_rad: np.ndarray, transition_rad: float) -> np.ndarray:
     """Return the Dahl state of every joint, ``(N, n)`` in [-1, 1], from angles ``(N, n)``.
 
-    ``z_k = z_{k-1} + (dq / phi) (1 - z_{k-1} sgn(dq))``, clipped to [-1, 1], from
-    ``z_0 = 0``: it follows the path, not the time, so it holds its value at rest.
+    The sticking state of the friction terms
+    (:func:`~teleop_force.friction.terms.sticking_update_into`, ``dz/dq = (1 - z sgn(dq)) /
+    phi`` solved over each step) from ``z_0 = 0``: it follows the path, not the time, so it
+    holds its value at rest.
     """
     if not transition_rad > 0:
         raise ConfigurationError(f"transition angle must be > 0, got {transition_rad}")
-    q = np.asarray(q_rad, dtype=float)
-    out = np.zeros_like(q)
-    for j in range(q.shape[1]):
-        z = 0.0
-        column = q[:, j].tolist()
-        state = out[:, j]
-        for k in range(1, len(column)):
-            dq = column[k] - column[k - 1]
-            if dq != 0.0:
-                z += dq / transition_rad * (1.0 - z * (1.0 if dq > 0 else -1.0))
-                z = min(1.0, max(-1.0, z))
-            state[k] = z
-    return out
+    q = np.ascontiguousarray(np.asarray(q_rad, dtype=float))
+    rows = np.eye(q.shape[1])
+    return sticking_states(q, rows, 1.0 / transition_rad, np.zeros(q.shape[0], dtype=bool))
 
 
 def slider_regressor(

@@ -3,10 +3,20 @@
 The formulas are the terms of :mod:`teleop_force.friction.terms` (one definition for the
 batch fit and the streaming estimator): each model is a table of terms, one velocity form
 (``qd_j``, ``qd_a - qd_b``) per pair of parameters ``[a_c, a_v]``.
+
+Sticking (``sticking_rad`` > 0, the transition angle ``phi``): each term's ``sgn(w)`` is its
+Dahl state ``z`` (:func:`~teleop_force.friction.terms.sticking_update_into`), a function of
+the path of the term's angle: it turns to ``sgn(w)`` within a few ``phi`` of motion after a
+reversal and holds at rest, so at rest under load the friction is that of the last motion (the
+pre-sliding of the plant's bristles, LuGre's ``z``) instead of none (the standstill dead band,
+which it replaces) or a sign picked by velocity noise. ``torque(qd)`` is then the sliding
+friction; the friction along a recorded path is :meth:`TermTableFriction.path_torque`.
 """
 
 from __future__ import annotations
 
+import math
+from abc import abstractmethod
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -15,23 +25,37 @@ from msgspec import Struct
 
 from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.friction.base import FrictionModel, JointCount, JointIndex
-from teleop_force.friction.terms import linear_friction_basis, term_table_torque
+from teleop_force.friction.terms import (
+    linear_friction_basis,
+    sticking_states,
+    term_table_torque,
+)
 from teleop_force.schema import Finite, read_entry
+
+#: Range [rad] searched for a term's sticking transition angle: from a few encoder counts
+#: (3e-5 rad at the test stand's joint) to a tenth of a radian, where it is no longer sticking.
+STICKING_RANGE_RAD = (1e-4, 1e-1)
 
 
 class CoulombViscousEntry(Struct):
-    """``cv``: Coulomb and viscous per joint."""
+    """``cv``: Coulomb and viscous per joint; ``sticking_rad`` > 0: the Dahl transition angle."""
 
     n_joints: JointCount
     parameters: list[Finite]
+    sticking_rad: Finite = 0.0
+
+    def __post_init__(self) -> None:
+        if self.sticking_rad < 0:
+            raise ModelFileError(f"must be >= 0, got {self.sticking_rad}", column="sticking_rad")
 
 
-class CoupledCoulombViscousEntry(CoulombViscousEntry):
+class CoupledCoulombViscousEntry(CoulombViscousEntry, kw_only=True):
     """``coupled-cv``: the joints each joint's friction sees (0-based), inside the model."""
 
     friction_inputs: list[list[JointIndex]]
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         n = self.n_joints
         if len(self.friction_inputs) != n:
             raise ModelFileError(f"expected {n} lists of joint indices", column="friction_inputs")
@@ -42,7 +66,59 @@ class CoupledCoulombViscousEntry(CoulombViscousEntry):
                 )
 
 
-class CoulombViscous(FrictionModel):
+class TermTableFriction(FrictionModel):
+    """A Coulomb-viscous term table (:meth:`term_table`), with an optional sticking state."""
+
+    #: The Dahl transition angle [rad] of the Coulomb terms (module doc); 0: ``sgn(w)``.
+    sticking_rad: float = 0.0
+
+    @abstractmethod
+    def term_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(rows, reach)`` of the terms (:mod:`~teleop_force.friction.terms`)."""
+
+    def set_sticking(self, transition_rad: float) -> None:
+        """Set the sticking transition angle [rad] (0: off); ModelError if negative or NaN."""
+        value = float(transition_rad)
+        if not (value >= 0.0 and math.isfinite(value)):
+            raise ModelError(f"{self.kind}: sticking_rad must be finite and >= 0, got {value}")
+        self.sticking_rad = value
+
+    def sticking_states(self, q_rad: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
+        """Return the Dahl state of every term along the angles ``q_rad`` (N, n) -> (N, T).
+
+        One stream from sample 0, another at every set ``starts`` (N, bool); ModelError
+        without a transition angle.
+        """
+        if not self.sticking_rad > 0.0:
+            raise ModelError(f"{self.kind}: no sticking state (sticking_rad is 0)")
+        q = np.ascontiguousarray(np.atleast_2d(np.asarray(q_rad, dtype=float)))
+        if starts is None:
+            starts = np.zeros(q.shape[0], dtype=bool)
+        rows, _ = self.term_table()
+        return sticking_states(q, np.ascontiguousarray(rows), 1.0 / self.sticking_rad, starts)
+
+    def path_regressor(self, q_rad: np.ndarray, qd_rad_s: np.ndarray) -> np.ndarray:
+        """:meth:`regressor` along a path: ``sgn(w_t)`` columns are the Dahl states (if any)."""
+        out = self.regressor(qd_rad_s)
+        if self.sticking_rad > 0.0:
+            z = self.sticking_states(q_rad)
+            _, reach = self.term_table()
+            for t in range(reach.shape[0]):
+                out[:, :, 2 * t] = z[:, t, None] * reach[t][None, :]
+        return out
+
+    def path_torque(self, q_rad: np.ndarray, qd_rad_s: np.ndarray) -> np.ndarray:
+        """Friction torque (N, n) along a path of one stream (``torque`` without sticking)."""
+        if not self.sticking_rad > 0.0:
+            return np.asarray(self.torque(qd_rad_s))
+        return np.einsum("kjp,p->kj", self.path_regressor(q_rad, qd_rad_s), self.parameters)
+
+    def _sticking_entry(self) -> dict[str, Any]:
+        """Return the model file's ``sticking_rad`` (only when set: older readers keep reading)."""
+        return {"sticking_rad": self.sticking_rad} if self.sticking_rad > 0.0 else {}
+
+
+class CoulombViscous(TermTableFriction):
     """``tau_f,i = a_c,i sgn(qd_i) + a_v,i qd_i`` for every joint."""
 
     kind: ClassVar[str] = "cv"
@@ -75,16 +151,19 @@ class CoulombViscous(FrictionModel):
             "kind": self.kind,
             "n_joints": self.n_joints,
             "parameters": self.parameters.tolist(),
+            **self._sticking_entry(),
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CoulombViscous:
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
         entry = read_entry(data, CoulombViscousEntry)
-        return _built(lambda: cls(entry.n_joints, np.array(entry.parameters)))
+        model = _built(lambda: cls(entry.n_joints, np.array(entry.parameters)))
+        model.set_sticking(entry.sticking_rad)
+        return model
 
 
-class CoupledCoulombViscous(FrictionModel):
+class CoupledCoulombViscous(TermTableFriction):
     """Coulomb + viscous with relative-velocity terms for coupled joints (paper experiment 2).
 
     Joint ``j`` whose friction depends on the velocities ``S_j`` gets, for every other joint
@@ -158,6 +237,7 @@ class CoupledCoulombViscous(FrictionModel):
             "n_joints": self.n_joints,
             "friction_inputs": [list(s) for s in self.friction_inputs],
             "parameters": self.parameters.tolist(),
+            **self._sticking_entry(),
         }
 
     @classmethod
@@ -165,7 +245,9 @@ class CoupledCoulombViscous(FrictionModel):
         """Deserialise what :meth:`to_dict` wrote; raise ModelFileError naming the field."""
         entry = read_entry(data, CoupledCoulombViscousEntry)
         inputs = tuple(tuple(s) for s in entry.friction_inputs)
-        return _built(lambda: cls(entry.n_joints, inputs, np.array(entry.parameters)))
+        model = _built(lambda: cls(entry.n_joints, inputs, np.array(entry.parameters)))
+        model.set_sticking(entry.sticking_rad)
+        return model
 
 
 def _samples(qd: np.ndarray) -> np.ndarray:

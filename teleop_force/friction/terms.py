@@ -15,6 +15,9 @@ friction models call it over samples, the streaming estimator once per sample
 * :func:`grid_density` and :func:`coverage_trust`: a coverage grid's smoothed density,
   multilinear between cell centres and 0 one cell outside (as ``scipy.ndimage.map_coordinates``
   with ``order=1, mode="grid-constant"``), and the smoothstep trust ramp over it;
+* :func:`sticking_update_into`: the sticking (Dahl) state of a term, which replaces its
+  ``sgn(w)`` when the model has a transition angle: it follows the term's angle (the path,
+  not the time), reaches ``sgn`` within a few transition angles of motion and holds at rest;
 * :func:`standstill_factor`: the standstill dead band, a ramp of the friction torque (and
   of found effects' direction factor) to 0 while every joint is slower than a band (the
   Coulomb sign is unknown at rest).
@@ -109,6 +112,81 @@ def linear_friction_basis(
             out[k, 2 * (t - first)] = sign(w)
             out[k, 2 * (t - first) + 1] = w
     return out
+
+
+# -- the sticking (Dahl) state of the Coulomb terms ----------------------------------------------
+
+
+@njit_cached()
+def dahl_step(z: float, dpsi: float, inv_transition: float) -> float:  # pragma: no cover
+    """Return the Dahl state after the angle moved by ``dpsi``: ``dz/dpsi = (1 - z sgn) / phi``.
+
+    Solved exactly over the step (``z -> sgn(dpsi)`` as ``1 - exp(-|dpsi| / phi)``, with
+    ``expm1`` so that tiny steps still move it), so it stays in [-1, 1] at any sample rate;
+    ``inv_transition`` is ``1 / phi`` [1/rad].
+    """
+    if dpsi > 0.0:
+        return z - (1.0 - z) * math.expm1(-dpsi * inv_transition)
+    if dpsi < 0.0:
+        return z + (1.0 + z) * math.expm1(dpsi * inv_transition)
+    return z
+
+
+@njit_cached()
+def sticking_update_into(
+    q: np.ndarray, rows: np.ndarray, inv_transition: float, state: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Advance the sticking state of a term table to the angles ``q`` (n,) of the next sample.
+
+    ``state`` (1 + 2 T): ``[started, angle_t..., z_t...]``, the angle of a term being its row
+    applied to ``q`` (as its velocity is to ``qd``); all zeros begins a stream at ``z = 0``.
+    """
+    terms = rows.shape[0]
+    if state[0] == 0.0:
+        for t in range(terms):
+            state[1 + t] = term_velocity(rows[t], q)
+            state[1 + terms + t] = 0.0
+        state[0] = 1.0
+        return
+    for t in range(terms):
+        angle = term_velocity(rows[t], q)
+        state[1 + terms + t] = dahl_step(state[1 + terms + t], angle - state[1 + t], inv_transition)
+        state[1 + t] = angle
+
+
+@njit_cached()
+def sticking_states(
+    q: np.ndarray, rows: np.ndarray, inv_transition: float, starts: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Return the Dahl state of every term at every sample: ``q`` (N, n) -> (N, T).
+
+    A stream begins (``z = 0``) at sample 0 and wherever ``starts`` (N, bool) is set.
+    """
+    terms = rows.shape[0]
+    out = np.empty((q.shape[0], terms))
+    state = np.zeros(1 + 2 * terms)
+    for k in range(q.shape[0]):
+        if starts[k]:
+            state[0] = 0.0
+        sticking_update_into(q[k], rows, inv_transition, state)
+        for t in range(terms):
+            out[k, t] = state[1 + terms + t]
+    return out
+
+
+@njit_cached()
+def sticking_friction_torque_into(
+    qd: np.ndarray,
+    rows: np.ndarray,
+    reach: np.ndarray,
+    parameters: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """:func:`linear_friction_torque_into` with each term's ``sgn(w_t)`` replaced by ``z_t``."""
+    for t in range(rows.shape[0]):
+        f = parameters[2 * t] * z[t] + parameters[2 * t + 1] * term_velocity(rows[t], qd)
+        add_weighted_into(f, reach[t], out)
 
 
 # -- the standstill dead band ----------------------------------------------------------------------

@@ -671,6 +671,33 @@ class WaveletNetwork(FrictionModel):
             return np.asarray(self.fallback.torque(qd), dtype=float)
         return np.zeros(qd.shape)
 
+    def path_base_torque(self, q_rad: np.ndarray, qd_rad_s: np.ndarray) -> np.ndarray:
+        """:meth:`base_torque` along a path of one stream: a sticking fallback follows ``q_rad``."""
+        fallback = self.fallback
+        if self._on_fallback and fallback is not None and fallback.sticking_rad > 0.0:
+            return np.asarray(fallback.path_torque(q_rad, qd_rad_s), dtype=float)
+        return self.base_torque(qd_rad_s)
+
+    def path_torque(
+        self, q_rad: np.ndarray, qd_rad_s: np.ndarray, blend: bool = True
+    ) -> np.ndarray:
+        """:meth:`blended_torque` (``blend``; else :meth:`torque`) along a path of one stream.
+
+        The fallback's Coulomb terms follow ``q_rad`` when it has a sticking state.
+        """
+        qd = np.atleast_2d(np.asarray(qd_rad_s, dtype=float))
+        fallback = self.fallback
+        if not blend:
+            return np.asarray(self.torque(qd), dtype=float)
+        if fallback is None or not fallback.sticking_rad > 0.0:
+            return self.blended_torque(qd)
+        return trust_blend_values(
+            np.ascontiguousarray(self.coverage_weight(qd), dtype=float),
+            np.ascontiguousarray(self.torque(qd), dtype=float),
+            np.ascontiguousarray(fallback.path_torque(q_rad, qd), dtype=float),
+            self.on_fallback,
+        )
+
     @property
     def structure_version(self) -> int:
         """Counter bumped on every change of the active set."""

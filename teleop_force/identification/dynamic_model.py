@@ -54,6 +54,32 @@ def friction_torque(friction: FrictionModel, qd: np.ndarray, blend: bool = True)
     return np.asarray(blended(qd) if blended is not None else friction.torque(qd))
 
 
+def sticking_rad_of(friction: FrictionModel) -> float:
+    """Return the sticking transition angle [rad] of the Coulomb terms (a network's fallback's).
+
+    0 for a friction without a sticking state.
+    """
+    table = getattr(friction, "fallback", None) or friction
+    return float(getattr(table, "sticking_rad", 0.0))
+
+
+def path_friction_torque(
+    friction: FrictionModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, blend: bool = True
+) -> np.ndarray:
+    """:func:`friction_torque` along a path of one stream: a sticking state follows ``q_rad``.
+
+    Coulomb-viscous models with a sticking transition angle, and wavelet networks whose
+    fallback has one, evaluate it along the angles (from ``z = 0``); others as
+    :func:`friction_torque`.
+    """
+    path_torque = getattr(friction, "path_torque", None)
+    if path_torque is None:
+        return friction_torque(friction, qd_rad_s, blend)
+    if getattr(friction, "fallback", None) is not None:  # a network
+        return np.asarray(path_torque(q_rad, qd_rad_s, blend))
+    return np.asarray(path_torque(q_rad, qd_rad_s))
+
+
 @dataclass(frozen=True, eq=False)
 class DynamicModel:
     """Everything needed to compute the model torque of a robot from its motion.
@@ -101,6 +127,12 @@ class DynamicModel:
         """Friction torque at velocities ``qd`` (N x n); coverage-aware unless ``blend=False``."""
         return friction_torque(self.friction, qd, blend)
 
+    def path_friction_torque(
+        self, q_rad: np.ndarray, qd_rad_s: np.ndarray, blend: bool = True
+    ) -> np.ndarray:
+        """Friction torque along a path of one stream (:func:`path_friction_torque`)."""
+        return path_friction_torque(self.friction, q_rad, qd_rad_s, blend)
+
     def effects_torque(
         self, t_s: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray
     ) -> np.ndarray:
@@ -115,7 +147,8 @@ class DynamicModel:
         """Return the filtered model torque ``tau_hat_L`` (the paper's eq. (10)) of a recording."""
         t = signals.t_s
         rigid = np.einsum("kjp,p->kj", signals.rigid_regressor, self.base_values)
-        other = self.friction_torque(signals.qd_rad_s, blend) + self.offsets_nm[None, :]
+        other = self.path_friction_torque(signals.q_rad, signals.qd_rad_s, blend)
+        other = other + self.offsets_nm[None, :]
         if self.effects:
             other = other + self.effects_torque(t, signals.q_rad, signals.qd_rad_s, rigid)
         return rigid + lowpass_batch(other, t, self.filter_config.cutoff_hz)

@@ -21,7 +21,12 @@ import numpy as np
 
 from teleop_force.errors import ConfigurationError
 from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
+from teleop_force.friction.coulomb_viscous import (
+    STICKING_RANGE_RAD,
+    CoulombViscous,
+    CoupledCoulombViscous,
+    TermTableFriction,
+)
 from teleop_force.friction.kinds import FrictionKind
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification.dynamic_model import DynamicModel
@@ -68,9 +73,18 @@ def stage_one_friction(friction_kind: FrictionKind, description: RobotDescriptio
             return CoupledCoulombViscous(description.n_joints, description.friction_inputs)
 
 
+#: How much lower (relative) the friction fit's mean squared relative residual must be with a
+#: sticking state than with ``sgn(w)`` for ``identify_model(sticking=True)`` to keep it.
+STICKING_MIN_GAIN = 0.1
+
+
 def _friction_regressor(friction: FrictionModel, signals: FilteredSignals) -> np.ndarray:
-    """Return the filtered friction regressor ``(N, n, p_f)`` of a recording."""
-    raw = friction.regressor(signals.qd_rad_s)
+    """Return the filtered friction regressor ``(N, n, p_f)`` of a recording (along its path)."""
+    raw = (
+        friction.path_regressor(signals.q_rad, signals.qd_rad_s)
+        if isinstance(friction, TermTableFriction)
+        else friction.regressor(signals.qd_rad_s)
+    )
     flat = lowpass_batch(raw.reshape(raw.shape[0], -1), signals.t_s, signals.config.cutoff_hz)
     return flat.reshape(raw.shape)
 
@@ -94,6 +108,60 @@ def _stack_regressor(
     return np.concatenate(blocks), np.concatenate(torques)
 
 
+def _friction_block(
+    prepared: Sequence[PreparedRecording], friction: FrictionModel, with_offsets: bool
+) -> np.ndarray:
+    """Return the friction (and offset) columns of :func:`_stack_regressor` alone."""
+    blocks = []
+    n = friction.n_joints
+    for item in prepared:
+        s = item.signals
+        fric = _friction_regressor(friction, s)[s.valid]
+        if with_offsets:
+            fric = np.concatenate((fric, np.broadcast_to(np.eye(n), (fric.shape[0], n, n))), 2)
+        blocks.append(fric)
+    return np.concatenate(blocks)
+
+
+def choose_sticking(
+    prepared: Sequence[PreparedRecording],
+    friction: TermTableFriction,
+    friction_torque: np.ndarray,
+    names: list[str],
+    with_offsets: bool,
+) -> tuple[float, Identification, dict[str, float]]:
+    """Pick the Coulomb terms' sticking transition angle on the identification's own motion.
+
+    Fits the friction (and offsets) to ``friction_torque`` (the stacked valid samples' torque
+    less the rigid body) with ``sgn(w)`` and with the Dahl state of every transition angle in
+    :data:`STICKING_RANGE_RAD` (bounded search on its logarithm), scored by the mean over the
+    joints of the squared relative residual. Keeps the best angle if it scores
+    :data:`STICKING_MIN_GAIN` lower than ``sgn(w)``, else 0. Returns the angle (also set on
+    ``friction``), that fit and the two scores.
+    """
+    from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is slow to import
+
+    def fit(transition_rad: float) -> tuple[float, Identification]:
+        friction.set_sticking(transition_rad)
+        result = least_squares(
+            _friction_block(prepared, friction, with_offsets), friction_torque, names
+        )
+        return float(np.mean(result.relative_rms**2)), result
+
+    sign_score, sign_fit = fit(0.0)
+    low, high = np.log10(STICKING_RANGE_RAD)
+    found = minimize_scalar(
+        lambda x: fit(10.0**x)[0], bounds=(low, high), method="bounded", options={"xatol": 0.02}
+    )
+    transition_rad = float(10.0**found.x)
+    score, result = fit(transition_rad)
+    scores = {"sign": sign_score, "sticking": score, "transition_rad": transition_rad}
+    if score <= (1.0 - STICKING_MIN_GAIN) * sign_score:
+        return transition_rad, result, scores
+    friction.set_sticking(0.0)
+    return 0.0, sign_fit, scores
+
+
 def identify_model(
     recordings: Sequence[Recording],
     description: RobotDescription,
@@ -102,14 +170,21 @@ def identify_model(
     wavelet: WaveletOptions | None = None,
     rigid_body: RigidBodyFitOptions | None = None,
     offsets: bool | None = None,
+    sticking: bool = False,
 ) -> tuple[DynamicModel, FitReport]:
     """Identify rigid-body parameters and friction from recordings.
 
     ``offsets``: fit a constant torque per joint with the friction (the data authors'
     Coulomb + viscous + offset); None fits them only without rigid-body terms. A
     ``friction_kind`` given by its name is parsed (:class:`ConfigurationError` if unknown).
+    ``sticking``: give the Coulomb terms of the stage-one CV (``wn``: the network's fallback,
+    chosen before the network is trained on what it leaves) a sticking state if the motion
+    says so (:func:`choose_sticking`, the friction refitted with the rigid body held);
+    ConfigurationError with ``model-cv``.
     """
     friction_kind = FrictionKind.parse(friction_kind)
+    if sticking and friction_kind is FrictionKind.MODEL_CV:
+        raise ConfigurationError("a sticking state goes with cv, coupled-cv or wn friction")
     config = config or FilterConfig()
     rigid_body = rigid_body or RigidBodyFitOptions()
     prepared, base = prepare(recordings, description, config)
@@ -140,6 +215,16 @@ def identify_model(
     stage_one.parameters = friction_values[:p_f].copy()
     offsets_nm = friction_values[p_f:] if with_offsets else np.zeros(description.n_joints)
     details: dict[str, Any] = {"stage_one_friction": stage_one.kind}
+    if sticking and isinstance(stage_one, TermTableFriction):
+        rest = torque - np.einsum("kjp,p->kj", regressor[:, :, :r], base_values)
+        transition, stage_one_fit, scores = choose_sticking(
+            prepared, stage_one, rest, names[r:], with_offsets
+        )
+        stage_one.parameters = stage_one_fit.parameters[:p_f].copy()
+        if with_offsets:
+            offsets_nm = stage_one_fit.parameters[p_f:]
+        details["sticking_rad"] = transition
+        details["sticking_scores"] = scores
     friction: FrictionModel = stage_one
     if friction_kind is FrictionKind.WN:
         from teleop_force.identification.wavelet_training import train_wavelet_network

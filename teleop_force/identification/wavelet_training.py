@@ -152,7 +152,9 @@ def train_wavelet_network(
         known = [
             extra
             + lowpass_batch(
-                network.base_torque(p.signals.qd_rad_s), p.signals.t_s, p.signals.config.cutoff_hz
+                network.path_base_torque(p.signals.q_rad, p.signals.qd_rad_s),
+                p.signals.t_s,
+                p.signals.config.cutoff_hz,
             )
             for p, extra in zip(prepared, known, strict=True)
         ]

@@ -51,7 +51,7 @@ import numpy as np
 from teleop_force.errors import ConfigurationError
 from teleop_force.friction.kinds import WN_STRUCTURES, FrictionKind, wn_on_fallback
 from teleop_force.friction.wavelet_network import WaveletNetwork
-from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.dynamic_model import DynamicModel, sticking_rad_of
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.pipeline import identify_model
 from teleop_force.identification.prepared import wavelet_options_for
@@ -179,6 +179,9 @@ class AccuracyOptions:
             the residual loop from the identified model
             (:func:`~teleop_force.residual.from_model.trace_from_model`, as ``teleop-force
             residual --model``) adds what that motion shows the model lacks.
+        sticking: Look for a sticking state of the Coulomb terms in the free motion
+            (``identify --sticking``; ``None``: as ``identify`` does for the Omni, on, but
+            not with ``model-cv`` friction; ``True`` with ``model-cv``: ConfigurationError).
 
     """
 
@@ -188,6 +191,7 @@ class AccuracyOptions:
     friction: str | None = None
     wn_structure: str = WN_STRUCTURES[0]
     trace_residual: bool = False
+    sticking: bool | None = None
 
     def __post_init__(self) -> None:
         for name in ("identify_duration_s", "test_duration_s"):
@@ -198,6 +202,8 @@ class AccuracyOptions:
         if self.friction is not None:
             FrictionKind.parse(self.friction)
         wn_on_fallback(self.wn_structure)
+        if self.sticking is True and self.friction == "model-cv":
+            raise ConfigurationError("sticking goes with friction cv, coupled-cv or wn")
 
 
 @dataclass(frozen=True)
@@ -224,6 +230,8 @@ class SessionAccuracy:
     simulate_wall_s: float
     #: What the residual loop added on the free motion (``trace_residual``), one line each.
     found_effects: tuple[str, ...] = ()
+    #: The sticking transition angle the identification kept [rad] (0: none).
+    sticking_rad: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """Return the figures as a JSON-ready dict (NaN as ``None``)."""
@@ -287,22 +295,28 @@ def identify_free_motion(
     protocol: str = DEFAULT_IDENTIFY_PROTOCOL,
     friction: str | None = None,
     wn_structure: str = WN_STRUCTURES[0],
+    sticking: bool | None = None,
 ) -> tuple[DynamicModel, SimulatedSession]:
     """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm.
 
     ``protocol``: one of :data:`IDENTIFY_PROTOCOLS`; ``friction``: a friction kind instead of
-    the Omni's default; ``wn_structure``: the network's (``--wn-structure``).
+    the Omni's default; ``wn_structure``: the network's (``--wn-structure``); ``sticking``:
+    as ``identify --sticking`` (``None``: ``identify``'s default for the Omni).
     """
     family = PlantFamily.parse(family)
     run = _identify_protocol(protocol)
     session = run(duration_s, seed, family=family, plant_config=plant_config(family, seed))
     defaults = robot_defaults(RobotKind.OMNI)  # what `teleop-force identify` fits by default
+    kind = FrictionKind.parse(friction if friction is not None else defaults.friction)
+    if sticking is None:
+        sticking = defaults.sticking and kind is not FrictionKind.MODEL_CV
     model, _ = identify_model(
         [_recording(session)],
         omni_description(),
-        FrictionKind.parse(friction if friction is not None else defaults.friction),
+        kind,
         wavelet=wavelet_options_for(wn_structure),
         offsets=defaults.offsets,
+        sticking=sticking,
     )
     return model, session
 
@@ -358,6 +372,7 @@ def session_accuracy(
             protocol=options.identify_protocol,
             friction=options.friction,
             wn_structure=options.wn_structure,
+            sticking=options.sticking,
         )
         if options.trace_residual:
             model, found = _trace_residual(model, free)
@@ -393,6 +408,7 @@ def session_accuracy(
         identify_wall_s=round(identify_wall, 1),
         simulate_wall_s=round(simulate_wall, 1),
         found_effects=found,
+        sticking_rad=sticking_rad_of(model.friction),
         **figures,  # type: ignore[arg-type]
     )
     log(
@@ -497,6 +513,15 @@ def write_accuracy_report(
         accuracy_table(results),
         "",
     ]
+    if options.sticking is not False:
+        lines += [
+            "The identification looked for a sticking state of the Coulomb terms"
+            " (`--sticking`); the transition angle it kept per seed (0: none, sgn(qd) and the"
+            " dead band):",
+            "",
+            *(f"- {r.family} seed {r.seed}: {r.sticking_rad:.3g} rad" for r in results),
+            "",
+        ]
     if options.trace_residual:
         lines += [
             "The residual loop ran on each identification's free motion before the test"
@@ -517,6 +542,7 @@ def write_accuracy_report(
         "friction": options.friction,
         "wn_structure": options.wn_structure,
         "trace_residual": options.trace_residual,
+        "sticking": options.sticking,
         "sessions": [r.to_json() for r in results],
     }
     path = folder / "accuracy.json"

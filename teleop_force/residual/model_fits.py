@@ -19,7 +19,7 @@ import numpy as np
 from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.friction.kinds import FrictionKind
-from teleop_force.identification.dynamic_model import DynamicModel, friction_torque
+from teleop_force.identification.dynamic_model import DynamicModel, path_friction_torque
 from teleop_force.identification.effects import FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.least_squares import Identification, least_squares
@@ -259,7 +259,7 @@ def _final_fit(
         if network is None:
             a[:, :, r : r + p_f] = _friction_regressor(friction, s)[v]
         else:
-            known = friction_torque(network, s.qd_rad_s)
+            known = path_friction_torque(network, s.q_rad, s.qd_rad_s)
             target = target - lowpass_batch(known, s.t_s, config.cutoff_hz)
         col = r + p_f
         if baseline.offsets:

@@ -17,20 +17,25 @@ class RobotDefaults:
     """The best baseline of a robot: what ``identify`` and ``residual`` fit by default.
 
     ``friction`` is a friction kind's name (``teleop_force.friction.kinds.FrictionKind``);
-    ``offsets``: fit a constant torque per joint (None: only without a rigid body).
+    ``offsets``: fit a constant torque per joint (None: only without a rigid body);
+    ``sticking``: ``identify --sticking`` (a sticking state for the Coulomb terms where the
+    recordings say so; not with ``model-cv``).
     """
 
     friction: str
     offsets: bool | None = None
+    sticking: bool = False
 
 
 #: Per built-in robot (docs/cli.md). The MTM: friction in model coordinates with offsets
 #: (its cables and parallelogram; on trajectory two, joints 2 / 3: 17.2 / 24.1 % against
 #: 24.5 / 29.3 % with the wavelet network, docs/robots.md); the test stand: CV (its flights
 #: are too short to train a network on: ``TeststandOptions`` in estimation/teststand.py);
-#: the Omni, ``none`` and description files: the wavelet network (the library's default).
+#: the Omni, ``none`` and description files: the wavelet network (the library's default). The
+#: Omni's identification looks for a sticking state (kept only where its free motion fits
+#: better with it: none on plant family one, the tuning set; docs/results.md).
 BUILTIN_DEFAULTS: dict[RobotKind, RobotDefaults] = {
-    RobotKind.OMNI: RobotDefaults("wn"),
+    RobotKind.OMNI: RobotDefaults("wn", sticking=True),
     RobotKind.NONE: RobotDefaults("wn"),
     RobotKind.DVRK_MTM: RobotDefaults("model-cv", offsets=True),
     RobotKind.TESTSTAND: RobotDefaults("cv"),

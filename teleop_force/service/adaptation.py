@@ -123,6 +123,12 @@ def adaptation_unavailable_reason(estimator: ForceEstimator) -> str | None:
         return f"the model's friction is {friction.kind!r}; online adaptation needs 'wn'"
     if estimator.robot is None:
         return "the model has no rigid-body terms (robot 'none'): no momentum to adapt on"
+    fallback = friction.fallback
+    if friction.on_fallback and fallback is not None and fallback.sticking_rad > 0.0:
+        return (
+            "the network's fallback has a sticking state (identify --sticking), which online"
+            " adaptation does not follow: its target would take the sliding friction for it"
+        )
     return None
 
 

@@ -48,6 +48,10 @@ def test_identify_wn_is_the_default_and_round_trips(sessions, capsys) -> None:
     assert main(["identify", str(train), "-o", str(model)]) == 0
     saved = json.loads(model.read_text())
     assert saved["friction"]["kind"] == "wn"
+    # the Omni's identification looks for a sticking state and says what it kept
+    assert "sticking transition angle:" in capsys.readouterr().err
+    assert main(["identify", str(train), "--no-sticking", "-o", str(model)]) == 0
+    assert "sticking" not in capsys.readouterr().err
     capsys.readouterr()
     assert main(["evaluate", str(model), str(test), "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)["coverage"]) == 3

@@ -12,16 +12,21 @@ CV_PARAMETERS = np.array([0.02, 0.002, 0.02, 0.01, 0.003, 0.004, 0.01, 0.002, 0.
 
 
 def random_network(
-    seed: int = 0, wavelets_per_joint: int = 120, trained_rad_s: float = 0.6
+    seed: int = 0,
+    wavelets_per_joint: int = 120,
+    trained_rad_s: float = 0.6,
+    on_fallback: bool = False,
 ) -> WaveletNetwork:
-    """A network of random pool wavelets over a coupled-CV fallback.
+    """A network of random pool wavelets over a coupled-CV fallback (``on_fallback``: adds to it).
 
     Its coverage map counts 20,000 velocities uniform in ``+-trained_rad_s``: below the
     motion's speeds the blend weights lie strictly between 0 and 1.
     """
     description = omni_description()
     fallback = CoupledCoulombViscous(3, description.friction_inputs, CV_PARAMETERS)
-    net = WaveletNetwork(3, omni_wavelet_specs(2.0, 2.0), fallback=fallback)
+    net = WaveletNetwork(
+        3, omni_wavelet_specs(2.0, 2.0), fallback=fallback, on_fallback=on_fallback
+    )
     rng = np.random.default_rng(seed)
     for j in range(3):
         sl = net.pool.joint_slice(j)

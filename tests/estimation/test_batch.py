@@ -400,3 +400,24 @@ def test_estimates_are_one_row_per_sample() -> None:
     fields["singular"] = np.zeros(2, dtype=bool)
     with pytest.raises(DataError, match="singular"):
         batch_module.BatchEstimates(**fields)
+
+
+@pytest.mark.parametrize("choice", ["default", "observer-band"])
+@pytest.mark.parametrize("kind", ["cv", "coupled-cv", "wn"])
+def test_batch_equals_streaming_with_a_sticking_state(palpation, kind, choice) -> None:
+    """The Coulomb terms' Dahl state (a network's fallback's, under it): batch = streaming."""
+    t, q, tau = (x[:2500].copy() for x in palpation)
+    friction = random_network(0, 80, 0.15, on_fallback=True) if kind == "wn" else _friction(kind)
+    table = friction.fallback if isinstance(friction, WaveletNetwork) else friction
+    table.set_sticking(0.002)
+    estimator = ESTIMATOR_CHOICES.get(choice, {})
+    model = _omni_model(friction, EFFECTS, **estimator)
+    starts = (900,)
+    t[900:] = t[900:] - t[900]
+    result = BatchEstimator(model).estimate(t, q, tau, np.array(starts))
+    _assert_same(result, _streamed(model, t, q, tau, starts))
+    table.set_sticking(0.0)
+    plain = BatchEstimator(_omni_model(friction, EFFECTS, **estimator)).estimate(
+        t, q, tau, np.array(starts)
+    )
+    assert not np.allclose(result.tau_external_nm, plain.tau_external_nm, atol=1e-6)

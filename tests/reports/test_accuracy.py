@@ -174,3 +174,26 @@ def test_the_residual_loop_can_close_on_the_free_motion_first(tmp_path: Path) ->
     args = build_parser().parse_args(["accuracy", "--trace-residual", "-o", "x"])
     assert args.trace_residual
     assert not build_parser().parse_args(["accuracy", "-o", "x"]).trace_residual
+
+
+def test_the_sticking_search_is_identifys_default_and_reported(tmp_path: Path) -> None:
+    """Family two's LuGre arm shows a sticking state in its free motion; family one's does not."""
+    with pytest.raises(ConfigurationError, match="sticking"):
+        AccuracyOptions(friction="model-cv", sticking=True)
+    assert AccuracyOptions().sticking is None  # as `identify` does for the Omni: on
+    lugre, _ = identify_free_motion("two", 4, 30.0)
+    assert 1e-4 < lugre.friction.fallback.sticking_rad < 1e-2
+    unasked, _ = identify_free_motion("two", 4, 30.0, sticking=False)
+    assert unasked.friction.fallback.sticking_rad == 0.0
+    static, _ = identify_free_motion("one", 1, 30.0, friction="coupled-cv")
+    assert static.friction.sticking_rad == 0.0
+    options = AccuracyOptions(identify_duration_s=30.0, test_duration_s=5.0)
+    result = session_accuracy("two", 4, options=options, model=lugre)
+    assert result.sticking_rad == lugre.friction.fallback.sticking_rad
+    markdown, path = write_accuracy_report([result], tmp_path, options)
+    assert f"two seed 4: {result.sticking_rad:.3g} rad" in markdown.read_text()
+    assert json.loads(path.read_text())["sessions"][0]["sticking_rad"] == result.sticking_rad
+    parse = build_parser().parse_args
+    assert parse(["accuracy", "-o", "x"]).sticking is None
+    assert parse(["accuracy", "--no-sticking", "-o", "x"]).sticking is False
+    assert parse(["identify", "d.csv", "--sticking", "-o", "m.json"]).sticking is True
