@@ -175,6 +175,33 @@ def sticking_states(
 
 
 @njit_cached()
+def sticking_friction_torques_into(
+    q: np.ndarray,
+    qd: np.ndarray,
+    starts: np.ndarray,
+    rows: np.ndarray,
+    reach: np.ndarray,
+    parameters: np.ndarray,
+    inv_transition: float,
+    state: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Write the term table's torque with its sticking state at every sample to ``out`` (N, n).
+
+    ``state`` (1 + 2 T, :func:`sticking_update_into`) is carried over from the previous call;
+    a stream begins (``z = 0``) wherever ``starts`` (N, bool) is set.
+    """
+    terms = rows.shape[0]
+    for k in range(q.shape[0]):
+        if starts[k]:
+            state[0] = 0.0
+        sticking_update_into(q[k], rows, inv_transition, state)
+        for j in range(out.shape[1]):
+            out[k, j] = 0.0
+        sticking_friction_torque_into(qd[k], rows, reach, parameters, state[1 + terms :], out[k])
+
+
+@njit_cached()
 def sticking_friction_torque_into(
     qd: np.ndarray,
     rows: np.ndarray,

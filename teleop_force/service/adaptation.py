@@ -8,7 +8,8 @@ identifier's signals (see that module)::
     p_L = L(M(q_v) qd)                                   filtered generalized momentum
     u_L = L(L_v(tau))[k - lag] - L(-C^T qd + N + tau_spring + offsets [+ CV(qd)])
 
-(``CV(qd)``: ``WaveletNetwork.base_torque``, the coupled CV of a network that adds to it)
+(``CV(qd)``: ``WaveletNetwork.base_torque``, the coupled CV of a network that adds to it;
+with a sticking state its Coulomb terms follow ``q_v``, the state carried across batches)
 
 computed exactly as :class:`~teleop_force.estimation.estimator.ForceEstimator` computes its
 terms (same pre-filter ``L_v``, cut-offs, torque lag and rigid-body model).
@@ -75,6 +76,7 @@ from teleop_force.errors import ConfigurationError
 from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.estimation.rigid_chain import chain_tables, chain_terms_batch
 from teleop_force.friction.adaptation import LyapunovAdapter
+from teleop_force.friction.terms import sticking_friction_torques_into
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.lowpass import LowPass
 
@@ -123,13 +125,44 @@ def adaptation_unavailable_reason(estimator: ForceEstimator) -> str | None:
         return f"the model's friction is {friction.kind!r}; online adaptation needs 'wn'"
     if estimator.robot is None:
         return "the model has no rigid-body terms (robot 'none'): no momentum to adapt on"
-    fallback = friction.fallback
-    if friction.on_fallback and fallback is not None and fallback.sticking_rad > 0.0:
-        return (
-            "the network's fallback has a sticking state (identify --sticking), which online"
-            " adaptation does not follow: its target would take the sliding friction for it"
-        )
     return None
+
+
+class _StickingBase:
+    """The fallback's torque a network on its fallback adds to, its Coulomb terms sticking.
+
+    What :meth:`WaveletNetwork.base_torque` gives, with the fallback's sticking state
+    (``sticking_rad``) advanced along the adaptation's pre-filtered angles: the network's
+    target is then what the estimator's fallback leaves. ``state`` carries over between
+    calls; a stream begins at a ``first`` sample.
+    """
+
+    def __init__(self, network: WaveletNetwork) -> None:
+        fallback = network.fallback
+        assert fallback is not None and fallback.sticking_rad > 0.0
+        rows, reach = fallback.term_table()
+        self.rows = np.ascontiguousarray(rows, dtype=float)
+        self.reach = np.ascontiguousarray(reach, dtype=float)
+        self.parameters = fallback.parameters
+        self.inv_transition = 1.0 / fallback.sticking_rad
+        self.state = np.zeros(1 + 2 * self.rows.shape[0])
+
+    @staticmethod
+    def of(network: WaveletNetwork) -> _StickingBase | None:
+        """Return the sticking base of ``network``; None unless it adds to a sticking fallback."""
+        fallback = network.fallback
+        if not network.on_fallback or fallback is None or not fallback.sticking_rad > 0.0:
+            return None
+        return _StickingBase(network)
+
+    def torques(self, q: np.ndarray, qd: np.ndarray, first: np.ndarray) -> np.ndarray:
+        """Torque (m, n) at the samples' angles and velocities (m, n), in stream order."""
+        out = np.empty(qd.shape)
+        sticking_friction_torques_into(
+            np.ascontiguousarray(q), np.ascontiguousarray(qd), first, self.rows, self.reach,
+            self.parameters, self.inv_transition, self.state, out,
+        )  # fmt: skip
+        return out
 
 
 def _make_adapter(
@@ -183,6 +216,7 @@ class OnlineAdaptation:
         self._t_prev: float | None = None
         self._q_prev = np.zeros(estimator.n)
         self._gap = True
+        self._sticking = _StickingBase.of(network)
         self.samples = 0
         self.skipped = 0
         self.last_error = np.zeros(estimator.n)
@@ -214,11 +248,17 @@ class OnlineAdaptation:
         self._q_prev = q
         robot = self.robot
         p_l = self._momentum.update(robot.momentum(q, qd), dt)
+        sticking = self._sticking
+        base = (
+            self.adapter.network.base_torque(qd)[0]
+            if sticking is None
+            else sticking.torques(q[None, :], qd[None, :], np.array([first]))[0]
+        )
         rigid = (
             robot.coriolis_transpose_gravity(q, qd)
             + robot.spring_torque(q, self.estimator.spring_stiffness)
             + self.estimator.model.offsets_nm
-            + self.adapter.network.base_torque(qd)[0]
+            + base
         )
         rigid_l = self._rigid.update(rigid, dt)
         previous = self._torque.state
@@ -491,6 +531,7 @@ class AdaptationWorker:
         self._queue: deque[tuple[Any, ...] | None] = deque(maxlen=QUEUE_CAPACITY)
         self._outbox: deque[_Snapshot] = deque()
         self._signal_state = np.zeros(2 + 5 * n)
+        self._sticking = _StickingBase.of(self.network)
         self._gate_state = np.array([-math.inf])
         self._pending = _Pending(n)
         self._restart_next = True
@@ -597,6 +638,8 @@ class AdaptationWorker:
     def _begin_stream(self) -> None:
         self._restart_next = True
         self._signal_state[:] = 0.0
+        if self._sticking is not None:
+            self._sticking.state[:] = 0.0
         self._gate_state[0] = -math.inf
         self._pending = _Pending(self.n)
         self._gap = True
@@ -658,7 +701,7 @@ class AdaptationWorker:
         q_v, qd = np.empty((m, n)), np.empty((m, n))
         dt, first = np.empty(m), np.empty(m, dtype=bool)
         _prefilter_signals(t, q, restart, self._signal_state, self._omega_v, q_v, qd, dt, first)
-        momentum, rigid = self._rigid_terms(q_v, qd)
+        momentum, rigid = self._rigid_terms(q_v, qd, first)
         p_l, u_l = np.empty((m, n)), np.empty((m, n))
         _filter_signals(
             tau, momentum, rigid, first, dt, self._signal_state, self._omega_v, self._omega,
@@ -666,13 +709,19 @@ class AdaptationWorker:
         )  # fmt: skip
         self._pending.extend(t=t, dt=dt, first=first, contact=contact, qd=qd, p_l=p_l, u_l=u_l)
 
-    def _rigid_terms(self, q_v: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rigid_terms(
+        self, q_v: np.ndarray, qd: np.ndarray, first: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``M(q_v) qd`` and what the network is not fitted to, in motor coordinates.
 
-        ``-C^T qd + N + springs + offsets``, plus the coupled CV of a network on its fallback.
+        ``-C^T qd + N + springs + offsets``, plus the coupled CV of a network on its fallback
+        (its sticking state, if any, advanced over the samples; ``first``: stream starts).
         """
         momentum, other = self._chain_terms(q_v, qd)
-        return momentum, other + self.network.base_torque(qd)
+        sticking = self._sticking
+        if sticking is None:
+            return momentum, other + self.network.base_torque(qd)
+        return momentum, other + sticking.torques(q_v, qd, first)
 
     def _chain_terms(self, q_v: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``M(q_v) qd`` and ``-C^T qd + N + springs + offsets`` in motor coordinates."""

@@ -1,12 +1,9 @@
 """The force service's adaptation switch: on, off, unavailable, and across model loads."""
 
-import dataclasses
-
 import pytest
 
 from teleop_force.errors import ConfigurationError
 from teleop_force.estimation.estimator import ForceEstimator
-from teleop_force.friction.model_file import friction_from_dict
 from teleop_force.service.adaptation_state import AdaptationState
 from tests.service.adaptation_cases import shipped_cv_model, wn_estimator
 
@@ -52,16 +49,3 @@ def test_adaptation_switches_and_follows_model_loads(base):
     assert (stats["enabled"], stats["available"], stats["note"]) == (False, True, "")
     assert stats["samples"] == 0 and stats["skipped_contact"] == 0
     assert not driver.running  # the old model's worker thread was stopped
-
-
-def test_adaptation_is_unavailable_on_a_sticking_fallback(base):
-    """A network on a fallback with a sticking state: its target would take the sliding CV."""
-    fallback = friction_from_dict(base.friction.to_dict())
-    fallback.set_sticking(0.001)
-    sticky = dataclasses.replace(base, friction=fallback)
-    estimator = wn_estimator(sticky, on_fallback=True)
-    state = AdaptationState(estimator)
-    assert "sticking" in state.note
-    with pytest.raises(ConfigurationError, match="sticking"):
-        state.switch(True, estimator)
-    assert AdaptationState(wn_estimator(sticky)).note == ""  # the paper's network replaces it

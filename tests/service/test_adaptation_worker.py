@@ -1,11 +1,13 @@
 """The adaptation worker: batches equal the per-sample reference, the free-motion gate, threads."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from teleop_force.errors import ConfigurationError
+from teleop_force.friction.model_file import friction_from_dict
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.service.adaptation import (
     AdaptationGate,
@@ -46,8 +48,15 @@ def simulated_stream(seed: int, n: int = 4000, restart: int = 2600):
     return t, q, tau, force, restart
 
 
-@pytest.mark.parametrize("on_fallback", [False, True])
-def test_batches_equal_the_per_sample_reference_with_the_gate_and_a_restart(base, on_fallback):
+@pytest.mark.parametrize(("on_fallback", "sticking"), [(False, False), (True, False), (True, True)])
+def test_batches_equal_the_per_sample_reference_with_the_gate_and_a_restart(
+    base, on_fallback, sticking
+):
+    """The worker's batches give the per-sample reference's network (a sticking fallback too)."""
+    if sticking:
+        fallback = friction_from_dict(base.friction.to_dict())
+        fallback.set_sticking(0.002)
+        base = dataclasses.replace(base, friction=fallback)
     t, q, tau, force, restart = simulated_stream(19)
     guard = 0.3
     contact = ~(np.linalg.norm(force, axis=1) < THRESHOLD_N)
@@ -198,3 +207,20 @@ def test_a_failing_batch_is_counted_and_the_worker_goes_on(base):
     worker._drain_guarded(final=True)
     stats = worker.stats()
     assert stats["errors"] == 1 and stats["samples"] == 47 and stats["pending"] == 0
+
+
+def test_a_sticking_fallback_changes_what_the_network_on_it_learns(base):
+    """The target is what the CV with its state leaves: not the sliding CV's remainder."""
+    t, q, tau, _, _ = simulated_stream(23, n=3000, restart=3000)
+    fallback = friction_from_dict(base.friction.to_dict())
+    fallback.set_sticking(0.02)
+    learnt = []
+    for model in (base, dataclasses.replace(base, friction=fallback)):
+        estimator = wn_estimator(model, on_fallback=True)
+        assert AdaptationState(estimator).note == ""  # available with the state too
+        reference = OnlineAdaptation(estimator)
+        for k in range(t.size):
+            reference.update(t[k], q[k], tau[k])
+        qd = np.gradient(q, t, axis=0)[500:]
+        learnt.append(estimator.model.friction.torque(qd))
+    assert np.sqrt(np.mean((learnt[0] - learnt[1]) ** 2)) > 1e-3
