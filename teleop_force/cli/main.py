@@ -64,7 +64,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if description.name == RobotKind.TESTSTAND:
         from teleop_force.estimation.teststand import identify_teststand_command
 
-        return identify_teststand_command(recordings, description, friction, args.output, _log)
+        return identify_teststand_command(
+            recordings, description, friction, args.output, _log, sticking=bool(args.sticking)
+        )
     offsets = defaults.offsets if args.offsets is None else args.offsets
     sticking = (
         defaults.sticking and friction is not FrictionKind.MODEL_CV

@@ -299,6 +299,8 @@ def identify_teststand(
     theta = _regularised_fit(regressor, torque, nominal, options.prior_weight)
     r = base.count
     friction.parameters = theta[r:].copy()
+    if sticking_rad > 0.0 and isinstance(friction, CoulombViscous):
+        friction.set_sticking(sticking_rad)  # the model file carries it: `estimate` runs it
     details: dict[str, Any] = {}
     if options.friction == "wn":
         friction, details = _train_network(
@@ -506,8 +508,13 @@ def identify_teststand_command(
     friction_kind: str,
     output: str | os.PathLike[str],
     log: Callable[[str], None],
+    *,
+    sticking: bool = False,
 ) -> int:
-    """``teleop-force identify --robot teststand``: identify on the free phases, save the model."""
+    """``teleop-force identify --robot teststand``: identify on the free phases, save the model.
+
+    ``sticking``: the Coulomb term's sticking state (``TeststandOptions.sticking``, ``cv``).
+    """
     if len(recordings) != 1:
         raise ConfigurationError("the test stand is identified from one log folder at a time")
     if friction_kind not in FRICTION_KINDS:
@@ -515,7 +522,7 @@ def identify_teststand_command(
             f"teststand: friction {friction_kind} is not one of {', '.join(FRICTION_KINDS)}"
         )
     identified = identify_teststand(
-        recordings[0], description, TeststandOptions(friction=friction_kind)
+        recordings[0], description, TeststandOptions(friction=friction_kind, sticking=sticking)
     )
     identified.model.save(Path(output))
     log(f"identified on {identified.free_samples} samples without contact (|F| < 1 N)")

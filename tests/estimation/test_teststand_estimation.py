@@ -11,6 +11,7 @@ import pytest
 from teleop_force.cli.main import main
 from teleop_force.errors import ConfigurationError, DataError
 from teleop_force.estimation import teststand as stand
+from teleop_force.estimation.batch import BatchEstimator
 from teleop_force.estimation.teststand import (
     estimate_forces,
     free_phase_mask,
@@ -151,3 +152,20 @@ def test_held_out_command_prints_one_json_object(
     assert payload["lab"] is None and payload["goal_ratio"] == pytest.approx(2 / 3)
     assert payload["ours"]["rms_n"] < payload["urdf"]["rms_n"]
     assert main(["teststand-heldout", str(folder), "--train-fraction", "1.5"]) == 2
+
+
+def test_a_sticking_stand_model_file_carries_its_state(tmp_path: Path) -> None:
+    """``identify --robot teststand --sticking``: the file's CV has the state `estimate` runs."""
+    recording = read_teststand_folder(_lab_log(tmp_path)).recording
+    description = stand_robot.teststand_description()
+    out = tmp_path / "sticky.json"
+    command = identify_teststand_command
+    assert command([recording], description, "cv", out, lambda _: None, sticking=True) == 0
+    model = DynamicModel.load(out)
+    assert model.friction.sticking_rad == model.notes["sticking_rad"] > 0.0
+    sticky = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
+    model.friction.set_sticking(0.0)
+    plain = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
+    assert not np.allclose(sticky.tau_external_nm, plain.tau_external_nm, atol=1e-6)
+    with pytest.raises(ConfigurationError, match="cv"):
+        command([recording], description, "coupled-cv", out, lambda _: None, sticking=True)
