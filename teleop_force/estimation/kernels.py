@@ -225,7 +225,8 @@ class ModelTerms:
     """A model's friction, offsets and found effects encoded for :func:`add_model_terms`.
 
     :meth:`arguments` gives the kernel's arguments for the next sample (the model's standstill
-    band last, from its filter configuration), following later
+    band, from its filter configuration, and the sticking state's ``1 / phi`` last; the state
+    itself is the caller's, per stream), following later
     changes of the model's friction: new parameters (read live), a network's new structure or
     coefficients, a replaced fallback or coverage map, new coverage counts. Calling the object
     evaluates one sample (tests and one-off use; the estimator calls the step kernels); with a
@@ -293,7 +294,7 @@ class ModelTerms:
         self._versions = (-1, -1, -1)
 
     def arguments(self) -> tuple[Any, ...]:
-        """Return the model's arguments of :func:`add_model_terms` (``mode`` ... the effects)."""
+        """Return the model's arguments of :func:`add_model_terms` (``mode`` ... ``1 / phi``)."""
         network = self.network
         if network is None:
             if self._linear is not None and self._fixed[3] is not self.friction.parameters:

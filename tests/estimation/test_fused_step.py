@@ -55,10 +55,17 @@ def _motion(n: int = 1200, seed: int = 0):
         ("wn", True, {}),
         ("wn", False, {"estimator": "observer", "observer_hz": 25.0}),
         ("coupled-cv", False, {"standstill_band_rad_s": 0.05}),
+        ("cv", True, {"sticking_rad": 0.002}),
+        ("wn", False, {"sticking_rad": 0.002, "standstill_band_rad_s": 0.05}),
     ],
 )
 def test_the_fused_step_equals_the_two_halves(friction, effects, config) -> None:
+    config = dict(config)
+    sticking = config.pop("sticking_rad", 0.0)
     model = _model(friction, effects, **config)
+    if sticking:  # the Coulomb terms' sticking state (a network's fallback's)
+        table = getattr(model.friction, "fallback", None) or model.friction
+        table.set_sticking(sticking)
     fused, halves = ForceEstimator(model), ForceEstimator(model, fused=False)
     assert fused.fused and not halves.fused
     t, q, tau = _motion()
