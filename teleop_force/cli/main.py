@@ -68,11 +68,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             recordings, description, friction, args.output, _log, sticking=bool(args.sticking)
         )
     offsets = defaults.offsets if args.offsets is None else args.offsets
-    sticking = (
-        defaults.sticking and friction is not FrictionKind.MODEL_CV
-        if args.sticking is None
-        else args.sticking
-    )
+    sticking = defaults.sticking_with(friction) if args.sticking is None else args.sticking
     model, report = identify_model(
         recordings,
         description,

@@ -283,10 +283,8 @@ class BatchEstimator:
         ]
         sticking = np.zeros((n_samples, 0))
         if terms[0].sticking_inv_rad > 0.0:
-            rows = np.ascontiguousarray(jobs[0][2][2][:, : self.n])
-            sticking = sticking_states(
-                np.ascontiguousarray(q_v), rows, terms[0].sticking_inv_rad, starts
-            )
+            inv_rad, rows = terms[0].sticking_inv_rad, terms[0].sticking_rows
+            sticking = sticking_states(np.ascontiguousarray(q_v), rows, inv_rad, starts)
 
         def run(job: tuple[slice, np.ndarray, tuple[Any, ...]]) -> tuple[np.ndarray, np.ndarray]:
             rows, work, arguments = job

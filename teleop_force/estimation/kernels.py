@@ -142,21 +142,17 @@ def add_model_terms(
     reach = linear_table[:, n:]
     sticking = sticking_inv_rad > 0.0
     standstill = standstill_factor(qd, standstill_band_rad_s)
-    if mode == FRICTION_LINEAR:
-        if sticking:
-            sticking_friction_torque_into(qd, rows, reach, linear_parameters, sticking_z, other)
-        else:
-            linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
-    elif mode >= FRICTION_NETWORK:  # a network, blended with or added to its fallback
+    # the term table: the friction, or a network's fallback (no rows without friction)
+    if sticking:
+        sticking_friction_torque_into(qd, rows, reach, linear_parameters, sticking_z, other)
+    else:
+        linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
+    if mode >= FRICTION_NETWORK:  # a network, blended with or added to its fallback
         for j in range(n):
             network[j] = 0.0
         wavelet_network_torque_into(
             qd, wavelet_inputs, wavelet_table, wavelet_runs, wavelet_psi, network
         )
-        if sticking:  # the fallback
-            sticking_friction_torque_into(qd, rows, reach, linear_parameters, sticking_z, other)
-        else:
-            linear_friction_torque_into(qd, rows, reach, linear_parameters, other)
         if grid_ints.shape[0] > 0:
             coverage_trust_into(qd, grid_ints, grid_floats, grid_values, weight)
         if sticking:  # the network's part is ramped, the fallback's sticking part is not
@@ -260,10 +256,14 @@ class ModelTerms:
         table_friction = self.friction if self.network is None else self.network.fallback
         sticking_table = _term_table(table_friction, n)
         rad = 0.0 if sticking_table is None else sticking_rad_of(self.friction)
-        #: ``1 / transition angle`` [1/rad] of the term table's sticking state (0: none), and
-        #: its number of terms (the state's size, :func:`state_size`). Read here, once.
+        #: ``1 / transition angle`` [1/rad] of the term table's sticking state (0: none), the
+        #: rows of its terms (the angle forms the state follows; none without a state) and
+        #: their number (the state's size, :func:`state_size`). Read here, once.
         self.sticking_inv_rad = 1.0 / rad if rad > 0.0 else 0.0
-        self.sticking_terms = 0 if sticking_table is None or rad == 0.0 else sticking_table.shape[0]
+        self.sticking_rows = np.zeros((0, n))
+        if sticking_table is not None and rad > 0.0:
+            self.sticking_rows = np.ascontiguousarray(sticking_table[:, :n])
+        self.sticking_terms = self.sticking_rows.shape[0]
         self._sticking_state = np.zeros(1 + 2 * self.sticking_terms)
         self._fixed: tuple[Any, ...] = (
             FRICTION_NONE if self._linear is None else FRICTION_LINEAR,
@@ -362,8 +362,7 @@ class ModelTerms:
         arguments = self.arguments()
         state = self._sticking_state
         if self.sticking_inv_rad > 0.0:
-            rows = np.ascontiguousarray(arguments[2][:, :n])
-            sticking_update_into(io[1 : 1 + n], rows, self.sticking_inv_rad, state)
+            sticking_update_into(io[1 : 1 + n], self.sticking_rows, self.sticking_inv_rad, state)
         add_model_terms(
             t, io[1 : 1 + n], io[1 + n : 1 + 2 * n], io[1 + 2 * n : 1 + 3 * n],
             io[1 + 3 * n : 1 + 4 * n], io[1 + 4 * n : 1 + 5 * n], io[1 + 5 * n : 1 + 6 * n],

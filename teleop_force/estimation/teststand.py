@@ -58,7 +58,7 @@ from teleop_force.friction.coulomb_viscous import (
     CoupledCoulombViscous,
 )
 from teleop_force.friction.terms import sticking_states
-from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.dynamic_model import DynamicModel, sticking_rad_of
 from teleop_force.identification.filtered_regressor import FilterConfig, FilteredSignals
 from teleop_force.identification.prepared import PreparedRecording, prepare
 from teleop_force.identification.regressor import (
@@ -143,8 +143,6 @@ class TeststandModel:
         free_samples: Number of samples identification used.
         details: Figures of the friction fit (the wavelet network's sizes, its fraction on
             trained ground) and ``warning``, one line, when the friction is mostly the CV.
-        sticking_rad: The identified Dahl transition angle [rad] of the Coulomb term; 0 when
-            the Coulomb term is ``sgn(qd)`` with the dead band.
 
     """
 
@@ -152,7 +150,11 @@ class TeststandModel:
     slider: bool
     free_samples: int
     details: dict[str, Any] = field(default_factory=dict)
-    sticking_rad: float = 0.0
+
+    @property
+    def sticking_rad(self) -> float:
+        """The Dahl transition angle [rad] of the model's Coulomb terms; 0: ``sgn(qd)``."""
+        return sticking_rad_of(self.model.friction)
 
 
 def free_phase_mask(recording: Recording, free_force_n: float, guard_s: float) -> np.ndarray:
@@ -323,7 +325,7 @@ def identify_teststand(
             "sticking_rad": sticking_rad,
         },
     )
-    return TeststandModel(model, options.slider, int(free.sum()), details, sticking_rad)
+    return TeststandModel(model, options.slider, int(free.sum()), details)
 
 
 def _sticking_basis(
@@ -443,8 +445,6 @@ def estimate_forces(
     """Force of the foot on the ground at every sample, base frame (N x 3, NaN if singular)."""
     model = identified.model
     observer = getattr(model.filter_config, "observer", False)
-    if observer and identified.sticking_rad > 0.0:
-        raise ConfigurationError("the sticking friction goes with the filter estimator")
     if observer and not identified.slider:
         from teleop_force.estimation.batch import BatchEstimator
 
@@ -456,7 +456,7 @@ def estimate_forces(
     tau_model = np.einsum("kjp,p->kj", rigid, model.base_values)
     if with_friction:
         friction_nm = (
-            _sticking_friction_torque(model, signals, identified.sticking_rad)
+            model.path_friction_torque(signals.q_rad, signals.qd_rad_s)
             if identified.sticking_rad > 0.0
             else _friction_torque(model, signals.qd_rad_s)
         )
@@ -484,21 +484,6 @@ def _friction_torque(model: DynamicModel, qd_rad_s: np.ndarray) -> np.ndarray:
         from teleop_force.friction.terms import standstill_factors
 
         torque = torque * standstill_factors(np.ascontiguousarray(qd_rad_s), band)[:, None]
-    return torque
-
-
-def _sticking_friction_torque(
-    model: DynamicModel, signals: FilteredSignals, transition_rad: float
-) -> np.ndarray:
-    """Return the CV friction torque, the Dahl state in place of ``sgn(qd)`` (no dead band)."""
-    friction = model.friction
-    if not isinstance(friction, CoulombViscous):
-        raise ConfigurationError("the sticking friction goes with cv friction")
-    state = dahl_state(signals.q_rad, transition_rad)
-    torque = np.empty_like(state)
-    for j in range(state.shape[1]):
-        coulomb, viscous = friction.parameters[friction.joint_slice(j)]
-        torque[:, j] = coulomb * state[:, j] + viscous * signals.qd_rad_s[:, j]
     return torque
 
 

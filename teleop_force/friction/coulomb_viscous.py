@@ -27,6 +27,7 @@ from teleop_force.errors import ModelError, ModelFileError
 from teleop_force.friction.base import FrictionModel, JointCount, JointIndex
 from teleop_force.friction.terms import (
     linear_friction_basis,
+    sticking_friction_torque,
     sticking_states,
     term_table_torque,
 )
@@ -111,7 +112,12 @@ class TermTableFriction(FrictionModel):
         """Friction torque (N, n) along a path of one stream (``torque`` without sticking)."""
         if not self.sticking_rad > 0.0:
             return np.asarray(self.torque(qd_rad_s))
-        return np.einsum("kjp,p->kj", self.path_regressor(q_rad, qd_rad_s), self.parameters)
+        rows, reach = self.term_table()
+        qd = np.ascontiguousarray(np.atleast_2d(np.asarray(qd_rad_s, dtype=float)))
+        return sticking_friction_torque(
+            qd, np.ascontiguousarray(rows), np.ascontiguousarray(reach), self.parameters,
+            self.sticking_states(q_rad),
+        )  # fmt: skip
 
     def _sticking_entry(self) -> dict[str, Any]:
         """Return the model file's ``sticking_rad`` (only when set: older readers keep reading)."""

@@ -155,16 +155,17 @@ def sticking_update_into(
 
 
 @njit_cached()
-def sticking_states(
-    q: np.ndarray, rows: np.ndarray, inv_transition: float, starts: np.ndarray
+def sticking_states_into(
+    q: np.ndarray, rows: np.ndarray, inv_transition: float, starts: np.ndarray, state: np.ndarray
 ) -> np.ndarray:  # pragma: no cover - compiled
     """Return the Dahl state of every term at every sample: ``q`` (N, n) -> (N, T).
 
-    A stream begins (``z = 0``) at sample 0 and wherever ``starts`` (N, bool) is set.
+    ``state`` (1 + 2 T, :func:`sticking_update_into`) is carried over from the previous call
+    and left at the last sample; a stream begins (``z = 0``) wherever ``starts`` (N, bool) is
+    set.
     """
     terms = rows.shape[0]
     out = np.empty((q.shape[0], terms))
-    state = np.zeros(1 + 2 * terms)
     for k in range(q.shape[0]):
         if starts[k]:
             state[0] = 0.0
@@ -175,30 +176,22 @@ def sticking_states(
 
 
 @njit_cached()
-def sticking_friction_torques_into(
-    q: np.ndarray,
-    qd: np.ndarray,
-    starts: np.ndarray,
-    rows: np.ndarray,
-    reach: np.ndarray,
-    parameters: np.ndarray,
-    inv_transition: float,
-    state: np.ndarray,
-    out: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """Write the term table's torque with its sticking state at every sample to ``out`` (N, n).
+def sticking_states(
+    q: np.ndarray, rows: np.ndarray, inv_transition: float, starts: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`sticking_states_into` from a new stream at sample 0: ``q`` (N, n) -> (N, T)."""
+    return sticking_states_into(q, rows, inv_transition, starts, np.zeros(1 + 2 * rows.shape[0]))
 
-    ``state`` (1 + 2 T, :func:`sticking_update_into`) is carried over from the previous call;
-    a stream begins (``z = 0``) wherever ``starts`` (N, bool) is set.
-    """
-    terms = rows.shape[0]
-    for k in range(q.shape[0]):
-        if starts[k]:
-            state[0] = 0.0
-        sticking_update_into(q[k], rows, inv_transition, state)
-        for j in range(out.shape[1]):
-            out[k, j] = 0.0
-        sticking_friction_torque_into(qd[k], rows, reach, parameters, state[1 + terms :], out[k])
+
+@njit_cached()
+def sticking_friction_torque(
+    qd: np.ndarray, rows: np.ndarray, reach: np.ndarray, parameters: np.ndarray, z: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Torque of a term table with its sticking states ``z`` (N, T) at every sample (N, n)."""
+    out = np.zeros((qd.shape[0], reach.shape[1]))
+    for k in range(qd.shape[0]):
+        sticking_friction_torque_into(qd[k], rows, reach, parameters, z[k], out[k])
+    return out
 
 
 @njit_cached()

@@ -61,7 +61,8 @@ DEFAULT_OBSERVER_PREFILTER_HZ = 40.0
 DEFAULT_OBSERVER_PREFILTER_STAGES = 2
 #: No Butterworth on the observer's output by default. The observer at 400 Hz on two 80 Hz
 #: stages with a second-order Butterworth at 40 Hz on its output won on family one (7.48 %
-#: against 7.93 %) and held out on family two only by 0.02-0.13 points a seed, while on the
+#: against 7.93 %) and held out on family two only by 0.02-0.13 points a seed (and lost there
+#: by 0.4-0.6 points once the identification kept a sticking state), while on the
 #: dVRK MTM's measured free motion it raised the external torque left by the model (joint 5:
 #: 0.573 -> 0.594 of the joint's torque on the loop's trajectory, 0.997 -> 1.007 on the other
 #: one): an option (``--observer-output-hz``), docs/accuracy/low_speed.md. 0: none, as the

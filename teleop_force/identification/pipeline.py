@@ -89,22 +89,31 @@ def _friction_regressor(friction: FrictionModel, signals: FilteredSignals) -> np
     return flat.reshape(raw.shape)
 
 
+def _friction_columns(
+    item: PreparedRecording, friction: FrictionModel, with_offsets: bool
+) -> np.ndarray:
+    """Friction (and offset) columns ``(N_valid, n, p_f [+ n])`` of one recording."""
+    s = item.signals
+    fric = _friction_regressor(friction, s)[s.valid]
+    if not with_offsets:
+        return fric
+    n = friction.n_joints
+    return np.concatenate((fric, np.broadcast_to(np.eye(n), (fric.shape[0], n, n))), axis=2)
+
+
 def _stack_regressor(
     prepared: Sequence[PreparedRecording], friction: FrictionModel, with_offsets: bool
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint regressor ``(N, n, r + p_f [+ n])`` and filtered torque over the valid samples."""
-    blocks, torques = [], []
-    n = friction.n_joints
-    for item in prepared:
-        s = item.signals
-        rigid = s.rigid_regressor[s.valid]
-        fric = _friction_regressor(friction, s)[s.valid]
-        m = int(s.valid.sum())
-        parts = [rigid, fric]
-        if with_offsets:
-            parts.append(np.broadcast_to(np.eye(n), (m, n, n)))
-        blocks.append(np.concatenate(parts, axis=2))
-        torques.append(s.tau_lowpassed_nm[s.valid])
+    blocks = [
+        np.concatenate(
+            (item.signals.rigid_regressor[item.signals.valid],
+             _friction_columns(item, friction, with_offsets)),
+            axis=2,
+        )
+        for item in prepared
+    ]  # fmt: skip
+    torques = [item.signals.tau_lowpassed_nm[item.signals.valid] for item in prepared]
     return np.concatenate(blocks), np.concatenate(torques)
 
 
@@ -112,15 +121,7 @@ def _friction_block(
     prepared: Sequence[PreparedRecording], friction: FrictionModel, with_offsets: bool
 ) -> np.ndarray:
     """Return the friction (and offset) columns of :func:`_stack_regressor` alone."""
-    blocks = []
-    n = friction.n_joints
-    for item in prepared:
-        s = item.signals
-        fric = _friction_regressor(friction, s)[s.valid]
-        if with_offsets:
-            fric = np.concatenate((fric, np.broadcast_to(np.eye(n), (fric.shape[0], n, n))), 2)
-        blocks.append(fric)
-    return np.concatenate(blocks)
+    return np.concatenate([_friction_columns(item, friction, with_offsets) for item in prepared])
 
 
 def choose_sticking(

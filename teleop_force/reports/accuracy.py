@@ -309,7 +309,7 @@ def identify_free_motion(
     defaults = robot_defaults(RobotKind.OMNI)  # what `teleop-force identify` fits by default
     kind = FrictionKind.parse(friction if friction is not None else defaults.friction)
     if sticking is None:
-        sticking = defaults.sticking and kind is not FrictionKind.MODEL_CV
+        sticking = defaults.sticking_with(kind)
     model, _ = identify_model(
         [_recording(session)],
         omni_description(),

@@ -26,6 +26,10 @@ class RobotDefaults:
     offsets: bool | None = None
     sticking: bool = False
 
+    def sticking_with(self, friction: str) -> bool:
+        """Whether ``identify`` looks for a sticking state by default with ``friction``."""
+        return self.sticking and friction != "model-cv"
+
 
 #: Per built-in robot (docs/cli.md). The MTM: friction in model coordinates with offsets
 #: (its cables and parallelogram; on trajectory two, joints 2 / 3: 17.2 / 24.1 % against

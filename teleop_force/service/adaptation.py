@@ -76,7 +76,7 @@ from teleop_force.errors import ConfigurationError
 from teleop_force.estimation.estimator import ForceEstimator
 from teleop_force.estimation.rigid_chain import chain_tables, chain_terms_batch
 from teleop_force.friction.adaptation import LyapunovAdapter
-from teleop_force.friction.terms import sticking_friction_torques_into
+from teleop_force.friction.terms import sticking_friction_torque, sticking_states_into
 from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.lowpass import LowPass
 
@@ -157,12 +157,12 @@ class _StickingBase:
 
     def torques(self, q: np.ndarray, qd: np.ndarray, first: np.ndarray) -> np.ndarray:
         """Torque (m, n) at the samples' angles and velocities (m, n), in stream order."""
-        out = np.empty(qd.shape)
-        sticking_friction_torques_into(
-            np.ascontiguousarray(q), np.ascontiguousarray(qd), first, self.rows, self.reach,
-            self.parameters, self.inv_transition, self.state, out,
-        )  # fmt: skip
-        return out
+        z = sticking_states_into(
+            np.ascontiguousarray(q), self.rows, self.inv_transition, first, self.state
+        )
+        return sticking_friction_torque(
+            np.ascontiguousarray(qd), self.rows, self.reach, self.parameters, z
+        )
 
 
 def _make_adapter(

@@ -3,6 +3,7 @@ the force sensor kept out of every fit, and the held-out split."""
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -164,7 +165,16 @@ def test_a_sticking_stand_model_file_carries_its_state(tmp_path: Path) -> None:
     model = DynamicModel.load(out)
     assert model.friction.sticking_rad == model.notes["sticking_rad"] > 0.0
     sticky = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
+    # the observer runs the state too (it refused a sticking model before the state was native)
+    observer = stand.TeststandModel(
+        replace(model, filter_config=replace(model.filter_config, estimator="observer")), False, 0
+    )
+    assert observer.sticking_rad == model.friction.sticking_rad
+    sticky_observer = stand.estimate_forces(observer, recording, description)
+    assert np.isfinite(sticky_observer).all()
     model.friction.set_sticking(0.0)
+    plain_observer = stand.estimate_forces(observer, recording, description)
+    assert not np.allclose(sticky_observer, plain_observer, atol=1e-6)
     plain = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
     assert not np.allclose(sticky.tau_external_nm, plain.tau_external_nm, atol=1e-6)
     with pytest.raises(ConfigurationError, match="cv"):
