@@ -69,6 +69,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         )
     offsets = defaults.offsets if args.offsets is None else args.offsets
     sticking = defaults.sticking_with(friction) if args.sticking is None else args.sticking
+    count_observer = defaults.count_observer if args.count_observer is None else args.count_observer
     model, report = identify_model(
         recordings,
         description,
@@ -76,9 +77,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         wavelet=wavelet_options_for(args.wn_structure, args.wn_fit),
         offsets=offsets,
         sticking=sticking,
+        count_observer=count_observer,
     )
     if sticking:
         _log(f"sticking transition angle: {report.details['sticking_rad']:.3g} rad (0: sgn kept)")
+    if count_observer:
+        counts = ", ".join(f"{c:.3g}" for c in model.filter_config.count_rad)
+        _log(f"count observer on; encoder counts measured: {counts} rad")
     model.save(args.output)
     _log(report.rigid.table())
     _log(
@@ -488,8 +493,11 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         args.wn_structure,
         args.trace_residual,
         args.sticking,
+        # the identification's choice: with it, the counts and the estimator that goes with it
+        args.count_observer,
     )
     overrides: dict[str, object] = dict(given_estimator_flags(args))
+    overrides.pop("count_observer", None)
     results = run_accuracy(
         args.family, args.seeds, estimate=BatchEstimate(overrides), options=options, log=_log
     )
@@ -591,6 +599,7 @@ def _add_identify(subparsers: _Subparsers) -> None:
         " library) or by the paper's Lyapunov adaptation",
     )
     _add_wn_structure(p)
+    _add_count_observer(p)
     _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
@@ -874,6 +883,17 @@ def _add_accuracy(subparsers: _Subparsers) -> None:
     _add_output(p, "folder for accuracy.md and accuracy.json", required=True)
     _add_json_flag(p, "print the figures as one JSON object")
     p.set_defaults(run=_cmd_accuracy)
+
+
+def _add_count_observer(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--count-observer",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="identify a model that estimates on the encoder count observer's angles (the"
+        " counts measured on the recordings, the observer at 400 Hz; default: the robot's, on"
+        " for the Omni)",
+    )
 
 
 def _add_residual_blind(subparsers: _Subparsers) -> None:

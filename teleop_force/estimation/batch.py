@@ -44,7 +44,8 @@ import numpy as np
 import pinocchio as pin
 
 from teleop_force.compiled import njit_cached
-from teleop_force.errors import DataError
+from teleop_force.errors import ConfigurationError, DataError
+from teleop_force.estimation.count_observer import observe_counts, observer_tables
 from teleop_force.estimation.estimator import (
     DEFAULT_SIGMA_MIN,
     TRAINED_GROUND_WEIGHT,
@@ -64,6 +65,7 @@ from teleop_force.estimation.rigid_chain import (
 )
 from teleop_force.friction.terms import standstill_factors, sticking_states
 from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.encoder_count import measured_count_rad
 from teleop_force.identification.least_squares import relative_rms
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.robots.description import Robot
@@ -202,6 +204,8 @@ class BatchEstimator:
         if steps.size:
             k = int(steps[0])
             raise DataError(f"time does not increase ({t[k]} after {t[k - 1]})", row=k + 1)
+        if self.model.filter_config.count_observer:
+            q = self._observe_counts(t, q, tau, starts)
         with ThreadPoolExecutor(_threads()) as pool:
             # the tip Jacobian reads the raw angles only: computed meanwhile
             jacobian = pool.submit(self._jacobians, q)
@@ -234,6 +238,34 @@ class BatchEstimator:
             t, force, tau_ext, tau_filtered, tau_model, weight,
             weight >= TRAINED_GROUND_WEIGHT, singular,
         )  # fmt: skip
+
+    def _observe_counts(
+        self, t: np.ndarray, q: np.ndarray, tau: np.ndarray, starts: np.ndarray
+    ) -> np.ndarray:
+        """Return the count observer's angles (:mod:`~teleop_force.estimation.count_observer`).
+
+        The counts are the model's, or measured on these readings when it has none.
+        ConfigurationError for a model without rigid-body terms (the observer predicts with
+        them).
+        """
+        if self._tables is None:
+            raise ConfigurationError(
+                f"{self.model.robot}: the count observer needs a model with rigid-body terms"
+            )
+        tables = observer_tables(
+            self._count_rad(q),
+            self._tables,
+            self._coupling,
+            self._rotor,
+            self._springs,
+            self.model.friction,
+        )
+        return np.asarray(observe_counts(t, q, tau, starts, tables))
+
+    def _count_rad(self, q: np.ndarray) -> np.ndarray:
+        """Return the model's encoder counts, else those measured on ``q``."""
+        given = self.model.filter_config.count_rad
+        return np.array(given, dtype=float) if given else measured_count_rad(q)
 
     def _check(
         self, t_s: np.ndarray, q_rad: np.ndarray, tau_nm: np.ndarray

@@ -52,6 +52,9 @@ import numpy as np
 import pinocchio as pin
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError, SingularityError
+from teleop_force.estimation.count_observer import count_observer_step, observer_tables
+from teleop_force.estimation.count_observer import scratch_size as count_scratch_size
+from teleop_force.estimation.count_observer import state_size as count_state_size
 from teleop_force.estimation.fused_step import StepTables, fused_step
 from teleop_force.estimation.kernels import (
     RIGID_MATRICES,
@@ -116,6 +119,8 @@ def with_estimator(
     observer_prefilter_hz: float | None = None,
     observer_prefilter_stages: int | None = None,
     observer_output_hz: float | None = None,
+    count_observer: bool | None = None,
+    count_rad: Sequence[float] | None = None,
 ) -> DynamicModel:
     """Return ``model`` with its filter configuration's estimator choice overridden.
 
@@ -135,6 +140,8 @@ def with_estimator(
         ),
         "observer_prefilter_stages": observer_prefilter_stages,
         "observer_output_hz": None if observer_output_hz is None else float(observer_output_hz),
+        "count_observer": None if count_observer is None else bool(count_observer),
+        "count_rad": None if count_rad is None else tuple(float(c) for c in count_rad),
     }
     changes = {
         name: value
@@ -152,7 +159,7 @@ def estimator_from_args(model: DynamicModel, args: argparse.Namespace) -> Dynami
         model, args.estimator, args.observer_hz,
         observer_prefilter_hz=args.observer_prefilter_hz,
         observer_prefilter_stages=args.observer_prefilter_stages,
-        observer_output_hz=args.observer_output_hz,
+        observer_output_hz=args.observer_output_hz, count_observer=args.count_observer,
     )  # fmt: skip
 
 
@@ -176,6 +183,8 @@ def estimator_metadata(model: DynamicModel) -> dict[str, str]:
         "observer_prefilter_hz": repr(float(config.observer_prefilter_cutoff_hz)),
         "observer_prefilter_stages": str(int(config.observer_prefilter_stages)),
         "observer_output_hz": repr(float(config.observer_output_hz)),
+        "count_observer": "1" if config.count_observer else "0",
+        "count_rad": " ".join(repr(float(c)) for c in config.count_rad),
     }
 
 
@@ -204,12 +213,28 @@ def with_recorded_estimator(model: DynamicModel, metadata: dict[str, str]) -> Dy
         output_hz = 0.0
     if stages is not None and stages not in (1.0, 2.0):
         raise ConfigurationError(f"recording metadata observer_prefilter_stages={stages!r}")
+    count_observer, count_rad = _recorded_counts(metadata)
     return with_estimator(
         model, metadata.get("estimator") or None, numbers["observer_hz"],
         numbers["standstill_band_rad_s"], observer_prefilter_hz=prefilter_hz,
         observer_prefilter_stages=None if stages is None else int(stages),
-        observer_output_hz=output_hz,
+        observer_output_hz=output_hz, count_observer=count_observer, count_rad=count_rad,
     )  # fmt: skip
+
+
+def _recorded_counts(metadata: dict[str, str]) -> tuple[bool | None, tuple[float, ...] | None]:
+    """Return the count observer a recording's metadata names (off if recorded before it)."""
+    flag = metadata.get("count_observer")
+    if flag is None:
+        return (False, None) if metadata.get("estimator") else (None, None)
+    if flag not in ("0", "1"):
+        raise ConfigurationError(f"recording metadata count_observer={flag!r} is not 0 or 1")
+    text = metadata.get("count_rad", "")
+    try:
+        counts = tuple(float(c) for c in text.split())
+    except ValueError:
+        raise ConfigurationError(f"recording metadata count_rad={text!r}") from None
+    return flag == "1", counts or None
 
 
 def equivalent_rigid_body(model: DynamicModel) -> tuple[Robot | None, np.ndarray]:
@@ -242,6 +267,49 @@ class _PinocchioTerms:
         self.tip = -1 if tip_frame is None else robot.model.getFrameId(tip_frame)
 
 
+@dataclass(frozen=True, eq=False)
+class _CountObserver:
+    """The count observer's state, output and arguments in a :class:`ForceEstimator`."""
+
+    state: np.ndarray
+    out: np.ndarray
+    arguments: tuple[Any, ...]
+
+    @staticmethod
+    def create(estimator: ForceEstimator) -> _CountObserver:
+        """Build it for ``estimator``'s model (ConfigurationError without counts or a body)."""
+        model, n, robot = estimator.model, estimator.n, estimator.robot
+        counts = model.filter_config.count_rad
+        if robot is None:
+            raise ConfigurationError(
+                f"{model.robot}: the count observer needs a model with rigid-body terms"
+            )
+        if len(counts) != n:
+            raise ConfigurationError(
+                f"the count observer needs the filter's count_rad, one per joint (got {counts})"
+            )
+        tables = chain_tables(robot.model, robot.description.tip_frame)
+        if tables is None:
+            raise ConfigurationError(
+                f"{model.robot}: the count observer needs a chain of revolute or prismatic joints"
+            )
+        coupling = estimator._coupling
+        out = np.zeros(n)
+        arguments = (
+            observer_tables(
+                np.array(counts),
+                tables,
+                coupling,
+                estimator._rotor,
+                estimator._springs,
+                model.friction,
+            ),
+            np.zeros(count_scratch_size(n, coupling.shape[0], tables.n_bodies)),
+            out,
+        )
+        return _CountObserver(np.zeros(count_state_size(n)), out, arguments)
+
+
 class ForceEstimator:
     """Streaming estimator of the tip contact force from joint angles and motor torques."""
 
@@ -253,7 +321,9 @@ class ForceEstimator:
         ``fused``: run each sample in one compiled call (:mod:`~teleop_force.estimation.
         fused_step`) where the model allows it (a rigid body its kinematic chain encodes, a
         friction with a term encoding); False: always the two halves around pinocchio (the
-        reference the fused step is tested against).
+        reference the fused step is tested against). With the model's count observer
+        (:mod:`~teleop_force.estimation.count_observer`) every sample's angles are the
+        observer's; ConfigurationError if the model gives no ``count_rad`` or no rigid body.
         """
         self.model = model
         self.n = model.n_joints
@@ -273,6 +343,7 @@ class ForceEstimator:
         self._omega_observer = _TWO_PI * config.observer_hz
         self._omega_output = _TWO_PI * config.estimator_output_hz
         self._allocate()
+        self._counts = _CountObserver.create(self) if config.count_observer else None
         self._tables = self._fused_tables() if fused else None
         #: The fused step's table arguments and, after them, its full argument tail (kept
         #: until the tables are repacked: no tuple built per sample).
@@ -330,6 +401,8 @@ class ForceEstimator:
     def reset(self) -> None:
         """Forget all filter state (start of a new stream)."""
         self._state[:] = 0.0
+        if self._counts is not None:
+            self._counts.state[:] = 0.0
 
     def step(
         self, t_s: float, q_rad: Sequence[float] | np.ndarray, tau_nm: Sequence[float] | np.ndarray
@@ -341,6 +414,9 @@ class ForceEstimator:
         callers at 1 kHz (the service). Raises DataError on a bad sample (state untouched).
         ``q_rad`` and ``tau_nm``: arrays or tuples of floats (the fastest), or sequences.
         """
+        counts = self._counts
+        if counts is not None:
+            q_rad = self._observe_counts(counts, t_s, q_rad, tau_nm)
         tables = self._tables
         if tables is not None:
             return self._fused_step(tables, t_s, q_rad, tau_nm)
@@ -401,29 +477,57 @@ class ForceEstimator:
     ) -> np.ndarray:
         """:meth:`step` in one compiled call."""
         tables.refresh()
-        if not isinstance(q_rad, (tuple, np.ndarray)) or not isinstance(
-            tau_nm, (tuple, np.ndarray)
-        ):
-            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
         arguments = self._call_arguments
         if arguments[0] is not tables.call_arguments:  # the tables were repacked
             arguments = self._call_arguments = (
                 tables.call_arguments,
                 (*tables.call_arguments, self._out),
             )
-        arguments = arguments[1]
-        try:
-            code = fused_step(self._state, t_s, q_rad, tau_nm, *arguments)
-        except ValueError as exc:  # a wrong number of joints
-            raise DataError(f"expected {self.n} joint angles and torques: {exc}") from exc
-        except Exception:
-            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
-            code = fused_step(self._state, t_s, q_rad, tau_nm, *arguments)
-        if code != STEP_OK:
-            raise self._step_error(code, t_s)
+        q_rad = self._compiled(fused_step, self._state, t_s, q_rad, tau_nm, arguments[1])
         if self._has_tip and not self._tip_kernel:
             self._tip_force_python(q_rad, self._out)
         return self._out
+
+    def _observe_counts(
+        self,
+        counts: _CountObserver,
+        t_s: float,
+        q_rad: Sequence[float] | np.ndarray,
+        tau_nm: Sequence[float] | np.ndarray,
+    ) -> np.ndarray:
+        """Return the count observer's angles of this reading (DataError on a bad sample)."""
+        self._compiled(count_observer_step, counts.state, t_s, q_rad, tau_nm, counts.arguments)
+        return counts.out
+
+    def _compiled(
+        self,
+        kernel: Any,
+        state: np.ndarray,
+        t_s: float,
+        q_rad: Sequence[float] | np.ndarray,
+        tau_nm: Sequence[float] | np.ndarray,
+        arguments: tuple[Any, ...],
+    ) -> Sequence[float] | np.ndarray:
+        """Run a compiled step on one sample; return the angles as it took them.
+
+        Arrays and tuples of floats go in as they are (the service's tuples: no conversion at
+        1 kHz); anything else, or a tuple the kernel refuses, is converted first. DataError
+        for a wrong number of joints or a bad sample (the kernel leaves its state untouched).
+        """
+        if not isinstance(q_rad, (tuple, np.ndarray)) or not isinstance(
+            tau_nm, (tuple, np.ndarray)
+        ):
+            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
+        try:
+            code = kernel(state, t_s, q_rad, tau_nm, *arguments)
+        except ValueError as exc:  # a wrong number of joints
+            raise DataError(f"expected {self.n} joint angles and torques: {exc}") from exc
+        except Exception:  # e.g. a tuple holding something other than floats
+            q_rad, tau_nm = self._as_arrays(q_rad, tau_nm)
+            code = kernel(state, t_s, q_rad, tau_nm, *arguments)
+        if code != STEP_OK:
+            raise self._step_error(code, t_s)
+        return q_rad
 
     def _as_arrays(
         self, q_rad: Sequence[float] | np.ndarray, tau_nm: Sequence[float] | np.ndarray

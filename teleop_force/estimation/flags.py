@@ -16,7 +16,7 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the estimator's flags (each the model's value when absent).
 
     ``--estimator``, ``--observer-hz``, ``--observer-prefilter-hz``,
-    ``--observer-prefilter-stages``, ``--observer-output-hz``.
+    ``--observer-prefilter-stages``, ``--observer-output-hz``, ``--count-observer``.
     """
     parser.add_argument(
         "--estimator", choices=ESTIMATORS, default=None,
@@ -42,6 +42,11 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         help="cutoff of the second-order Butterworth on the observer's estimate [Hz]; 0: none "
         "(default: the model's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--count-observer", action=argparse.BooleanOptionalAction, default=None,
+        help="estimate on the encoder count observer's angles, or on the readings (default: "
+        "the model's; the streaming estimator needs the model's encoder counts)",
+    )  # fmt: skip
 
 
 #: The estimator flags and their ``argparse`` destinations (the ``FilterConfig`` fields they
@@ -52,10 +57,11 @@ _FLAGS = (
     ("--observer-prefilter-hz", "observer_prefilter_hz"),
     ("--observer-prefilter-stages", "observer_prefilter_stages"),
     ("--observer-output-hz", "observer_output_hz"),
+    ("--count-observer", "count_observer"),
 )
 
 
-def given_estimator_flags(args: argparse.Namespace) -> dict[str, str | float | int]:
+def given_estimator_flags(args: argparse.Namespace) -> dict[str, str | float | int | bool]:
     """Return the estimator flags ``args`` holds: ``FilterConfig`` field name -> value."""
     values = {name: getattr(args, name) for _, name in _FLAGS}
     return {name: value for name, value in values.items() if value is not None}
@@ -68,5 +74,8 @@ def forwarded_estimator_arguments(args: argparse.Namespace) -> tuple[str, ...]:
     for flag, name in _FLAGS:
         if name in given:
             value = given[name]
-            words += [flag, value if isinstance(value, str) else repr(value)]
+            if isinstance(value, bool):  # a switch: --flag or --no-flag
+                words.append(flag if value else "--no-" + flag[2:])
+            else:
+                words += [flag, value if isinstance(value, str) else repr(value)]
     return tuple(words)

@@ -118,6 +118,9 @@ class DynamicModel:
             raise ModelError("friction model and robot differ in joint count")
         if self.offsets_nm.shape != (self.n_joints,):
             raise ModelError("offsets_nm needs one value per joint")
+        counts = len(self.filter_config.count_rad)
+        if counts not in (0, self.n_joints):
+            raise ModelError(f"filter count_rad has {counts} counts for {self.n_joints} joints")
 
     def description(self) -> RobotDescription:
         """Return the robot description this model was identified for."""
@@ -160,7 +163,7 @@ class DynamicModel:
             "version": MODEL_VERSION,
             "robot": self.robot,
             "n_joints": self.n_joints,
-            "filter": asdict(self.filter_config),
+            "filter": _filter_dict(self.filter_config),
             "base": None if self.base is None else self.base.to_dict(),
             "base_names": [] if self.base is None else self.base.names(),
             "base_values": self.base_values.tolist(),
@@ -232,6 +235,18 @@ class DynamicModel:
         except (ValueError, RecursionError) as exc:  # e.g. an integer of > 4300 digits
             raise ModelFileError(f"not JSON: {str(exc)[:120]}", path=path) from None
         return cls.from_dict(data, str(path))
+
+
+def _filter_dict(config: FilterConfig) -> dict[str, Any]:
+    """Return a model file's ``filter``: the count observer's fields only when used."""
+    values = asdict(config)
+    if not values["count_observer"]:
+        del values["count_observer"]
+    if values["count_rad"]:
+        values["count_rad"] = list(values["count_rad"])
+    else:
+        del values["count_rad"]
+    return values
 
 
 class ModelFileEntry(Struct):

@@ -101,6 +101,11 @@ class FilterConfig:
         observer_prefilter_stages: First-order stages of that pre-filter (1 or 2).
         observer_output_hz: Cutoff of a second-order Butterworth low-pass on the observer's
             external torque [Hz]; 0: none (the observer's own first-order lag only).
+        count_observer: Estimate from the angles of the encoder count observer
+            (:mod:`~teleop_force.estimation.count_observer`: the model carries the angle
+            between the counts) instead of the readings.
+        count_rad: The encoder count of each joint [rad] the count observer clips to; empty:
+            measured on the recording estimated (the smallest step between its readings).
 
     """
 
@@ -114,6 +119,8 @@ class FilterConfig:
     observer_prefilter_hz: float | None = DEFAULT_OBSERVER_PREFILTER_HZ
     observer_prefilter_stages: int = DEFAULT_OBSERVER_PREFILTER_STAGES
     observer_output_hz: float = DEFAULT_OBSERVER_OUTPUT_HZ
+    count_observer: bool = False
+    count_rad: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.cutoff_hz > 0:
@@ -147,6 +154,10 @@ class FilterConfig:
             raise ConfigurationError(
                 f"observer_output_hz must be >= 0, got {self.observer_output_hz}"
             )
+        object.__setattr__(self, "count_rad", tuple(float(c) for c in self.count_rad))
+        for j, count in enumerate(self.count_rad):
+            if not (count > 0 and math.isfinite(count)):
+                raise ConfigurationError(f"count_rad[{j}] must be > 0, got {count}")
 
     @property
     def observer(self) -> bool:
@@ -193,6 +204,9 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
     observer_prefilter_stages: Annotated[int, Meta(ge=1, le=2)] = LEGACY_OBSERVER_PREFILTER_STAGES
     # absent in files written before the output filter: none
     observer_output_hz: Finite = 0.0
+    # written only when on / given (older readers keep reading the files that do not use them)
+    count_observer: bool = False
+    count_rad: tuple[Finite, ...] = ()
 
     def __post_init__(self) -> None:
         self.config()  # FilterConfig's own range checks, named after this entry
@@ -207,6 +221,7 @@ class FilterEntry(Struct, forbid_unknown_fields=True):
                 observer_prefilter_hz=self.observer_prefilter_hz,
                 observer_prefilter_stages=self.observer_prefilter_stages,
                 observer_output_hz=self.observer_output_hz,
+                count_observer=self.count_observer, count_rad=self.count_rad,
             )  # fmt: skip
         except ConfigurationError as exc:
             raise ModelFileError(str(exc)) from None

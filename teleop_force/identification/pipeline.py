@@ -13,6 +13,7 @@ says so in one line (the command line prints it as ``warning: ...``).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,7 @@ from teleop_force.friction.coulomb_viscous import (
 from teleop_force.friction.kinds import FrictionKind
 from teleop_force.friction.model_coordinates import ModelCoordinateFriction
 from teleop_force.identification.dynamic_model import DynamicModel
+from teleop_force.identification.encoder_count import measured_count_rad, with_count_observer
 from teleop_force.identification.filtered_regressor import (
     FilterConfig,
     FilteredSignals,
@@ -172,6 +174,7 @@ def identify_model(
     rigid_body: RigidBodyFitOptions | None = None,
     offsets: bool | None = None,
     sticking: bool = False,
+    count_observer: bool = False,
 ) -> tuple[DynamicModel, FitReport]:
     """Identify rigid-body parameters and friction from recordings.
 
@@ -181,9 +184,14 @@ def identify_model(
     ``sticking``: give the Coulomb terms of the stage-one CV (``wn``: the network's fallback,
     chosen before the network is trained on what it leaves) a sticking state if the motion
     says so (:func:`choose_sticking`, the friction refitted with the rigid body held);
-    ConfigurationError with ``model-cv``.
+    ConfigurationError with ``model-cv``. ``count_observer``: the model estimates on the
+    count observer's angles, with the encoder count measured on the recordings and the
+    estimator that goes with it (:func:`~teleop_force.identification.encoder_count.
+    with_count_observer`); ConfigurationError without rigid-body terms.
     """
     friction_kind = FrictionKind.parse(friction_kind)
+    if count_observer and not description.has_rigid_body:
+        raise ConfigurationError("the count observer needs a robot with rigid-body terms")
     if sticking and friction_kind is FrictionKind.MODEL_CV:
         raise ConfigurationError("a sticking state goes with cv, coupled-cv or wn friction")
     config = config or FilterConfig()
@@ -258,6 +266,12 @@ def identify_model(
         },
     )
     training = evaluate_prepared(model, prepared)
+    if count_observer:
+        counts = measured_count_rad([p.recording.q_rad for p in prepared])
+        details["count_rad"] = counts.tolist()
+        model = dataclasses.replace(
+            model, filter_config=with_count_observer(config, counts.tolist())
+        )
     return model, FitReport(rigid_fit, training["relative_rms"], details, stage_one_fit)
 
 

@@ -5,7 +5,9 @@ rigid-body multisine of IV-A, then the slow friction sinusoids of IV-B with join
 moving equally, oppositely and independently) and identifies the rigid-body base parameters
 with the paper's wavelet-network friction (``wn``, ``--wn-structure alone``: its coupled
 Coulomb-viscous fallback and the coverage map of its training velocities included, so the
-dashboard's Fig. 4 panel shows the trained ground). The demo and the force-estimation
+dashboard's Fig. 4 panel shows the trained ground), estimating on the Omni's encoder count
+observer's angles (the Omni's default, :mod:`teleop_force.estimation.count_observer`; the
+counts measured on the protocol's recordings). The demo and the force-estimation
 service load this model unless ``--model`` names another one. Run it again after changing
 the simulator or the identification::
 
@@ -31,7 +33,9 @@ from teleop_force.identification.pipeline import identify_model
 from teleop_force.identification.prepared import wavelet_options_for
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.robots.kinds import RobotKind
 from teleop_force.robots.omni import omni_description
+from teleop_force.robots.registry import robot_defaults
 from teleop_force.simulation import SimulatedSession, friction_protocol, rigid_body_protocol
 
 
@@ -96,6 +100,7 @@ def make_default_model(config: ProtocolConfig, output: Path) -> None:
         omni_description(),
         FrictionKind(config.friction),
         wavelet=wavelet_options_for(config.wn_structure),
+        count_observer=robot_defaults(RobotKind.OMNI).count_observer,
     )
     model.notes.update(
         {

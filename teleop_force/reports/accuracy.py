@@ -182,6 +182,9 @@ class AccuracyOptions:
         sticking: Look for a sticking state of the Coulomb terms in the free motion
             (``identify --sticking``; ``None``: as ``identify`` does for the Omni, on, but
             not with ``model-cv`` friction; ``True`` with ``model-cv``: ConfigurationError).
+        count_observer: Identify a model that estimates on the encoder count observer's
+            angles (``identify --count-observer``; ``None``: as ``identify`` does for the
+            Omni, on).
 
     """
 
@@ -192,6 +195,7 @@ class AccuracyOptions:
     wn_structure: str = WN_STRUCTURES[0]
     trace_residual: bool = False
     sticking: bool | None = None
+    count_observer: bool | None = None
 
     def __post_init__(self) -> None:
         for name in ("identify_duration_s", "test_duration_s"):
@@ -232,6 +236,8 @@ class SessionAccuracy:
     found_effects: tuple[str, ...] = ()
     #: The sticking transition angle the identification kept [rad] (0: none).
     sticking_rad: float = 0.0
+    #: The encoder counts the count observer clipped to [rad] (empty: no count observer).
+    count_rad: tuple[float, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """Return the figures as a JSON-ready dict (NaN as ``None``)."""
@@ -239,6 +245,22 @@ class SessionAccuracy:
             key: (None if isinstance(value, float) and not math.isfinite(value) else value)
             for key, value in dataclasses.asdict(self).items()
         }
+
+
+def describe_estimator(config: FilterConfig) -> str:
+    """Describe the estimator a filter configuration runs (bandwidths, band, observer)."""
+    if config.observer:
+        prefilter_hz, stages = config.estimator_prefilter
+        words = [f"momentum observer {config.observer_hz:g} Hz on {stages} x {prefilter_hz:g} Hz"]
+        if config.observer_output_hz > 0.0:
+            words.append(f"Butterworth {config.observer_output_hz:g} Hz")
+    else:
+        words = [f"filter L {config.cutoff_hz:g} Hz on L_v {config.velocity_cutoff_hz:g} Hz"]
+    if config.standstill_band_rad_s > 0.0:
+        words.append(f"dead band {config.standstill_band_rad_s:g} rad/s")
+    if config.count_observer:
+        words.append("on the count observer's angles")
+    return ", ".join(words)
 
 
 def _rms_norm(x: np.ndarray) -> float:
@@ -296,12 +318,14 @@ def identify_free_motion(
     friction: str | None = None,
     wn_structure: str = WN_STRUCTURES[0],
     sticking: bool | None = None,
+    count_observer: bool | None = None,
 ) -> tuple[DynamicModel, SimulatedSession]:
     """Identify the Omni's default model on ``duration_s`` of free motion of the family's arm.
 
     ``protocol``: one of :data:`IDENTIFY_PROTOCOLS`; ``friction``: a friction kind instead of
-    the Omni's default; ``wn_structure``: the network's (``--wn-structure``); ``sticking``:
-    as ``identify --sticking`` (``None``: ``identify``'s default for the Omni).
+    the Omni's default; ``wn_structure``: the network's (``--wn-structure``); ``sticking``,
+    ``count_observer``: as ``identify --sticking``, ``--count-observer`` (``None``:
+    ``identify``'s default for the Omni).
     """
     family = PlantFamily.parse(family)
     run = _identify_protocol(protocol)
@@ -317,6 +341,7 @@ def identify_free_motion(
         wavelet=wavelet_options_for(wn_structure),
         offsets=defaults.offsets,
         sticking=sticking,
+        count_observer=defaults.count_observer if count_observer is None else count_observer,
     )
     return model, session
 
@@ -373,6 +398,7 @@ def session_accuracy(
             friction=options.friction,
             wn_structure=options.wn_structure,
             sticking=options.sticking,
+            count_observer=options.count_observer,
         )
         if options.trace_residual:
             model, found = _trace_residual(model, free)
@@ -396,10 +422,13 @@ def session_accuracy(
     reference = reference_filter(test.f_tip_in_base_n, test.sample_interval_s)
     figures = accuracy_figures(test, force_hat, reference, model.filter_config.warmup_s)
     describe = getattr(estimator, "describe", None)
+    name = describe() if callable(describe) else getattr(estimator, "__name__", "custom")
+    if callable(config_of := getattr(estimator, "config", None)):
+        name = f"{name}: {describe_estimator(config_of(model))}"
     result = SessionAccuracy(
         family=family.value,
         seed=int(seed),
-        estimator=describe() if callable(describe) else getattr(estimator, "__name__", "custom"),
+        estimator=name,
         friction=str(model.friction.kind),
         wn_structure=(
             model.friction.structure if isinstance(model.friction, WaveletNetwork) else None
@@ -409,6 +438,7 @@ def session_accuracy(
         simulate_wall_s=round(simulate_wall, 1),
         found_effects=found,
         sticking_rad=sticking_rad_of(model.friction),
+        count_rad=model.filter_config.count_rad if model.filter_config.count_observer else (),
         **figures,  # type: ignore[arg-type]
     )
     log(
@@ -522,6 +552,18 @@ def write_accuracy_report(
             *(f"- {r.family} seed {r.seed}: {r.sticking_rad:.3g} rad" for r in results),
             "",
         ]
+    if any(r.count_rad for r in results):
+        lines += [
+            "The estimates ran on the encoder count observer's angles (`--count-observer`);"
+            " the counts each identification measured [rad]:",
+            "",
+            *(
+                f"- {r.family} seed {r.seed}: " + " / ".join(f"{c:.3g}" for c in r.count_rad)
+                for r in results
+                if r.count_rad
+            ),
+            "",
+        ]
     if options.trace_residual:
         lines += [
             "The residual loop ran on each identification's free motion before the test"
@@ -543,6 +585,7 @@ def write_accuracy_report(
         "wn_structure": options.wn_structure,
         "trace_residual": options.trace_residual,
         "sticking": options.sticking,
+        "count_observer": options.count_observer,
         "sessions": [r.to_json() for r in results],
     }
     path = folder / "accuracy.json"

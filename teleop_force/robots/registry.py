@@ -19,12 +19,15 @@ class RobotDefaults:
     ``friction`` is a friction kind's name (``teleop_force.friction.kinds.FrictionKind``);
     ``offsets``: fit a constant torque per joint (None: only without a rigid body);
     ``sticking``: ``identify --sticking`` (a sticking state for the Coulomb terms where the
-    recordings say so; not with ``model-cv``).
+    recordings say so; not with ``model-cv``); ``count_observer``: ``identify
+    --count-observer`` (estimate on the encoder count observer's angles, for a robot whose
+    angles are encoder counts).
     """
 
     friction: str
     offsets: bool | None = None
     sticking: bool = False
+    count_observer: bool = False
 
     def sticking_with(self, friction: str) -> bool:
         """Whether ``identify`` looks for a sticking state by default with ``friction``."""
@@ -37,9 +40,10 @@ class RobotDefaults:
 #: are too short to train a network on: ``TeststandOptions`` in estimation/teststand.py);
 #: the Omni, ``none`` and description files: the wavelet network (the library's default). The
 #: Omni's identification looks for a sticking state (kept only where its free motion fits
-#: better with it: none on plant family one, the tuning set; docs/results.md).
+#: better with it: none on plant family one, the tuning set; docs/results.md) and estimates on
+#: its encoder count observer's angles (docs/accuracy/low_speed.md, tenth session).
 BUILTIN_DEFAULTS: dict[RobotKind, RobotDefaults] = {
-    RobotKind.OMNI: RobotDefaults("wn", sticking=True),
+    RobotKind.OMNI: RobotDefaults("wn", sticking=True, count_observer=True),
     RobotKind.NONE: RobotDefaults("wn"),
     RobotKind.DVRK_MTM: RobotDefaults("model-cv", offsets=True),
     RobotKind.TESTSTAND: RobotDefaults("cv"),

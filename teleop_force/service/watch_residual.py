@@ -38,12 +38,13 @@ DEFAULT_CONTEXT_SAMPLES: Final = 500
 def watch_estimator_model(model: DynamicModel) -> DynamicModel:
     """Return ``model`` with the watch's estimator: the observer at 24 Hz on one stage at L_v.
 
-    Without an output filter: the observer's own first-order lag only.
+    Without an output filter (the observer's own first-order lag only), on the readings (no
+    count observer): what the watch was calibrated with.
     """
     return with_estimator(
         model, "observer", WATCH_OBSERVER_HZ,
         observer_prefilter_hz=model.filter_config.velocity_cutoff_hz,
-        observer_prefilter_stages=1, observer_output_hz=0.0,
+        observer_prefilter_stages=1, observer_output_hz=0.0, count_observer=False,
     )  # fmt: skip
 
 

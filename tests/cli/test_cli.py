@@ -50,8 +50,17 @@ def test_identify_wn_is_the_default_and_round_trips(sessions, capsys) -> None:
     assert saved["friction"]["kind"] == "wn"
     # the Omni's identification looks for a sticking state and says what it kept
     assert "sticking transition angle:" in capsys.readouterr().err
-    assert main(["identify", str(train), "--no-sticking", "-o", str(model)]) == 0
-    assert "sticking" not in capsys.readouterr().err
+    # and estimates on its count observer's angles, with the counts measured on the data
+    assert saved["filter"]["count_observer"] is True
+    np.testing.assert_allclose(saved["filter"]["count_rad"], [4e-4] * 3, rtol=1e-9)
+    assert saved["filter"]["observer_hz"] == 400.0
+    assert (
+        main(["identify", str(train), "--no-sticking", "--no-count-observer", "-o", str(model)])
+        == 0
+    )
+    err = capsys.readouterr().err
+    assert "sticking" not in err and "count observer" not in err
+    assert "count_observer" not in json.loads(model.read_text())["filter"]
     capsys.readouterr()
     assert main(["evaluate", str(model), str(test), "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)["coverage"]) == 3

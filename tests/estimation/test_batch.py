@@ -421,3 +421,25 @@ def test_batch_equals_streaming_with_a_sticking_state(palpation, kind, choice) -
         t, q, tau, np.array(starts)
     )
     assert not np.allclose(result.tau_external_nm, plain.tau_external_nm, atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["cv", "coupled-cv", "wn"])
+def test_batch_equals_streaming_with_the_count_observer(palpation, kind) -> None:
+    t, q, tau = palpation
+    model = _omni_model(
+        _friction(kind), EFFECTS, estimator="observer", observer_hz=400.0,
+        observer_prefilter_hz=150.0, observer_output_hz=40.0, count_observer=True,
+        count_rad=(4e-4, 4e-4, 4e-4),
+    )  # fmt: skip
+    t = t.copy()
+    for start in RESTARTS:
+        t[start:] = t[start:] - t[start] + 0.0
+    result = BatchEstimator(model).estimate(t, q, tau, np.array(RESTARTS))
+    _assert_same(result, _streamed(model, t, q, tau, RESTARTS))
+    assert np.isfinite(result.force_tip_in_base_n).all()
+    # the observer's angles are not the readings: the estimate is not the one without it
+    plain = dataclasses.replace(
+        model, filter_config=dataclasses.replace(model.filter_config, count_observer=False)
+    )
+    other = BatchEstimator(plain).estimate(t, q, tau, np.array(RESTARTS))
+    assert np.abs(other.force_tip_in_base_n - result.force_tip_in_base_n).max() > 1e-3

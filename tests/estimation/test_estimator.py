@@ -252,3 +252,29 @@ def test_estimator_flags_forwarded_to_a_child_parse_back_the_same() -> None:
     words = forwarded_estimator_arguments(given)
     assert "--observer-prefilter-stages" in words
     assert parser.parse_args(list(words)) == given
+
+
+def test_the_count_observer_is_recorded_and_replayed() -> None:
+    model = with_estimator(_model(), count_observer=True, count_rad=(4e-4, 4e-4, 5e-4))
+    metadata = {"model": "m.json", **estimator_metadata(model)}
+    assert metadata["count_observer"] == "1"
+    replayed = with_recorded_estimator(_model(), metadata).filter_config
+    assert replayed.count_observer and replayed.count_rad == (4e-4, 4e-4, 5e-4)
+    # recorded before the field: on the readings, whatever the model says
+    before = {k: v for k, v in metadata.items() if not k.startswith("count_")}
+    assert not with_recorded_estimator(model, before).filter_config.count_observer
+    with pytest.raises(ConfigurationError, match="count_observer"):
+        with_recorded_estimator(model, {**metadata, "count_observer": "yes"})
+    with pytest.raises(ConfigurationError, match="count_rad"):
+        with_recorded_estimator(model, {**metadata, "count_rad": "4e-4 x"})
+
+
+@pytest.mark.parametrize("words", [["--count-observer"], ["--no-count-observer"]])
+def test_the_count_observer_switch_is_forwarded_as_given(words) -> None:
+    parser = argparse.ArgumentParser()
+    add_estimator_arguments(parser)
+    args = parser.parse_args(words)
+    assert forwarded_estimator_arguments(args) == tuple(words)
+    model = with_estimator(_model(), count_rad=(4e-4, 4e-4, 4e-4))
+    chosen = estimator_from_args(model, args).filter_config
+    assert chosen.count_observer is (words[0] == "--count-observer")

@@ -358,6 +358,8 @@ def model_seed_dicts() -> tuple[dict, ...]:
     )  # fmt: skip
     cv_none = json.loads(json.dumps(model.to_dict()))
     cv_none.update(robot="none", base=None, base_names=[], base_values=[], base_std=[])
+    # no rigid body, no count observer (it predicts with the body)
+    cv_none["filter"] = {k: v for k, v in cv_none["filter"].items() if not k.startswith("count_")}
     return (model.to_dict(), wn.to_dict(), cv_none)
 
 

@@ -197,3 +197,24 @@ def test_the_sticking_search_is_identifys_default_and_reported(tmp_path: Path) -
     assert parse(["accuracy", "-o", "x"]).sticking is None
     assert parse(["accuracy", "--no-sticking", "-o", "x"]).sticking is False
     assert parse(["identify", "d.csv", "--sticking", "-o", "m.json"]).sticking is True
+
+
+def test_the_count_observer_is_identifys_default_and_reported(tmp_path: Path) -> None:
+    """Each family's own encoders: family two's counts differ per joint."""
+    assert AccuracyOptions().count_observer is None  # as `identify` does for the Omni: on
+    model, _ = identify_free_motion("two", 4, 30.0, sticking=False)
+    config = model.filter_config
+    assert config.count_observer and config.observer_hz == 400.0
+    np.testing.assert_allclose(config.count_rad, (5.2e-4, 4.6e-4, 4.6e-4), rtol=1e-6)
+    plain, _ = identify_free_motion("two", 4, 30.0, sticking=False, count_observer=False)
+    assert not plain.filter_config.count_observer and plain.filter_config.observer_hz == 40.0
+    options = AccuracyOptions(identify_duration_s=30.0, test_duration_s=5.0)
+    result = session_accuracy("two", 4, options=options, model=model)
+    assert result.count_rad == config.count_rad
+    assert "count observer" in result.estimator
+    markdown, path = write_accuracy_report([result], tmp_path, options)
+    assert "two seed 4: 0.00052 / 0.00046 / 0.00046" in markdown.read_text()
+    assert json.loads(path.read_text())["sessions"][0]["count_rad"] == list(config.count_rad)
+    parse = build_parser().parse_args
+    assert parse(["accuracy", "--no-count-observer", "-o", "x"]).count_observer is False
+    assert parse(["identify", "d.csv", "-o", "m.json"]).count_observer is None
