@@ -64,6 +64,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if description.name == RobotKind.TESTSTAND:
         from teleop_force.estimation.teststand import identify_teststand_command
 
+        if args.count_observer:
+            raise ConfigurationError("identify --robot teststand takes no --count-observer")
+
         return identify_teststand_command(
             recordings, description, friction, args.output, _log, sticking=bool(args.sticking)
         )
@@ -112,6 +115,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         "friction": model.friction.kind,
         "robot": model.robot,
         "estimator": model.filter_config.estimator,
+        "count_observer": model.filter_config.count_observer,
     }
     if args.json:
         print(json.dumps(payload))

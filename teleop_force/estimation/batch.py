@@ -252,15 +252,11 @@ class BatchEstimator:
             raise ConfigurationError(
                 f"{self.model.robot}: the count observer needs a model with rigid-body terms"
             )
-        tables = observer_tables(
-            self._count_rad(q),
-            self._tables,
-            self._coupling,
-            self._rotor,
-            self._springs,
+        floats, ints, scratch = observer_tables(
+            self._count_rad(q), self._tables, self._coupling, self._rotor, self._springs,
             self.model.friction,
-        )
-        return np.asarray(observe_counts(t, q, tau, starts, tables))
+        )  # fmt: skip
+        return np.asarray(observe_counts(t, q, tau, starts, floats, ints, scratch))
 
     def _count_rad(self, q: np.ndarray) -> np.ndarray:
         """Return the model's encoder counts, else those measured on ``q``."""

@@ -2,9 +2,10 @@
 
 An encoder reads the angle to within one count ``c`` (a fraction of a milliradian on the
 Omni). Every estimator of the contact force differentiates the angle (the momentum ``M qd``,
-the friction's velocity), so the counts are what bounds its bandwidth
-(docs/accuracy/low_speed.md): fed the plant's true angles, the same estimators err 25-40 %
-less. This observer gives them angles that move between the counts, the way the arm does.
+the friction's velocity), so the counts are what bounds its bandwidth: fed the plant's true
+angles, the same estimators err 9-30 % less on plant family one and 32-45 % less on family
+two (docs/accuracy/low_speed.md). This observer gives them angles that move between the
+counts, the way the arm does.
 
 Per joint it keeps the angle ``q``, the momentum ``p`` and a disturbance torque ``d`` (the
 external torque and what the model lacks), and per sample (``dt``):
@@ -29,8 +30,10 @@ velocity and the force do not see.
 
 The count ``c`` per joint is the model's (identification measures it:
 :mod:`~teleop_force.identification.encoder_count`); the batch estimator measures it on the
-recording it estimates when the model has none. A stream restarts the observer at its first reading
-(momentum 0, the disturbance balancing the model at rest).
+recording it estimates when the model has none. A stream starts the observer at its first
+reading (momentum 0, the disturbance balancing the model at rest), and so does a prediction
+:data:`RESYNC_COUNTS` counts outside its reading, or not finite: a glitch, a gap or torques
+the model cannot follow are dropped, not corrected.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ from teleop_force.friction.base import FrictionModel
 from teleop_force.friction.coulomb_viscous import TermTableFriction
 from teleop_force.friction.terms import linear_friction_torque_into
 from teleop_force.friction.wavelet_network import WaveletNetwork
+from teleop_force.packed_tables import pack, slot_1d, slot_2d, slot_3d
 
 #: The velocity gain ``k_v`` (module docstring), chosen on plant family one, seeds 1-3.
 COUNT_VELOCITY_GAIN = 0.1
@@ -59,8 +63,6 @@ COUNT_VELOCITY_GAIN = 0.1
 COUNT_TORQUE_GAIN = 0.01
 #: A prediction this many counts outside its reading is dropped: the observer resyncs there.
 RESYNC_COUNTS = 32.0
-
-
 #: The observer's state: ``[started, t_prev, q (n), p (n), d (n), v (n), tau_prev (n)]``.
 STATE_HEAD = 2
 
@@ -74,7 +76,7 @@ def state_size(n: int) -> int:  # pragma: no cover - compiled
 @njit_cached()
 def scratch_size(n: int, n_model: int, n_bodies: int) -> int:  # pragma: no cover - compiled
     """Floats of the step's scratch (matrices, model-coordinate vectors, the chain's work)."""
-    return 3 * n * n + 5 * n + n_model * n_model + 5 * n_model + chain_work_size(n_bodies)
+    return 2 * n * n + 5 * n + n_model * n_model + 5 * n_model + chain_work_size(n_bodies)
 
 
 @njit_cached()
@@ -167,23 +169,49 @@ def _mass_and_other_into(
         mass[a, a] += rotor[a]
 
 
+#: Slots of the packed tables (:func:`observer_tables`): floats, then ints.
+(
+    _COUNT, _GAINS, _AXIS, _ROTATION, _TRANSLATION, _LINK_MASS, _COM, _INERTIA, _GRAVITY,
+    _COUPLING, _ROTOR, _SPRINGS, _ROWS, _REACH, _FRICTION, _PARENT, _KIND, _VELOCITY_INDEX,
+) = range(18)  # fmt: skip
+
+
+@njit_cached(inline="always")
+def _unpack(floats: np.ndarray, ints: np.ndarray) -> tuple[Any, ...]:  # pragma: no cover
+    """Return the tables as views: counts, gains, chain, body, the friction's term table."""
+    gains = slot_1d(floats, ints, _GAINS)
+    return (
+        slot_1d(floats, ints, _COUNT), gains[0], gains[1], slot_1d(ints, ints, _PARENT),
+        slot_1d(ints, ints, _KIND), slot_2d(floats, ints, _AXIS),
+        slot_3d(floats, ints, _ROTATION), slot_2d(floats, ints, _TRANSLATION),
+        slot_1d(ints, ints, _VELOCITY_INDEX), slot_1d(floats, ints, _LINK_MASS),
+        slot_2d(floats, ints, _COM), slot_3d(floats, ints, _INERTIA),
+        slot_1d(floats, ints, _GRAVITY), slot_2d(floats, ints, _COUPLING),
+        slot_1d(floats, ints, _ROTOR), slot_2d(floats, ints, _SPRINGS),
+        slot_2d(floats, ints, _ROWS), slot_2d(floats, ints, _REACH),
+        slot_1d(floats, ints, _FRICTION),
+    )  # fmt: skip
+
+
 @njit_cached()
 def count_observer_step(
     state: np.ndarray,
     t_s: float,
     q_count: np.ndarray,
     tau: np.ndarray,
-    tables: tuple[Any, ...],
+    floats: np.ndarray,
+    ints: np.ndarray,
     scratch: np.ndarray,
     out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
     """Advance the observer by one reading; its angles into ``out`` (module docstring).
 
-    ``tables``: :func:`observer_tables`. ``q_count`` and ``tau``: arrays or tuples of floats.
-    Returns ``STEP_OK``, or
-    ``STEP_NON_FINITE`` / ``STEP_TIME_NOT_INCREASING`` with the state untouched (ValueError
-    for a reading of another number of joints). A zeroed state starts a stream here.
+    ``floats``, ``ints``, ``scratch``: :func:`observer_tables`. ``q_count`` and ``tau``: arrays
+    or tuples of floats. Returns ``STEP_OK``, or ``STEP_NON_FINITE`` /
+    ``STEP_TIME_NOT_INCREASING`` with the state untouched (ValueError for a reading of another
+    number of joints). A zeroed state starts a stream here.
     """
+    tables = _unpack(floats, ints)
     count_rad, velocity_gain, torque_gain = tables[0], tables[1], tables[2]
     n = count_rad.size
     if len(q_count) != n or len(tau) != n:
@@ -328,7 +356,9 @@ def observe_counts(
     q_count: np.ndarray,
     tau: np.ndarray,
     starts: np.ndarray,
-    tables: tuple[Any, ...],
+    floats: np.ndarray,
+    ints: np.ndarray,
+    scratch: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover - compiled
     """Return the observed angles of every sample, a stream beginning at each set ``starts``.
 
@@ -337,12 +367,10 @@ def observe_counts(
     n_samples, n = q_count.shape
     out = np.empty((n_samples, n))
     state = np.zeros(state_size(n))
-    coupling, parent = tables[13], tables[3]
-    scratch = np.zeros(scratch_size(n, coupling.shape[0], parent.size))
     for k in range(n_samples):
         if starts[k]:
             state[:] = 0.0
-        count_observer_step(state, t_s[k], q_count[k], tau[k], tables, scratch, out[k])
+        count_observer_step(state, t_s[k], q_count[k], tau[k], floats, ints, scratch, out[k])
     return out
 
 
@@ -353,14 +381,26 @@ def observer_tables(
     rotor: np.ndarray,
     springs: np.ndarray,
     friction: FrictionModel,
-) -> tuple[Any, ...]:
-    """Return the observer's constant arguments: counts, gains, chain, body, friction."""
-    return (
-        np.ascontiguousarray(count_rad, dtype=float), COUNT_VELOCITY_GAIN, COUNT_TORQUE_GAIN,
-        *chain.arrays(), np.ascontiguousarray(coupling, dtype=float),
-        np.ascontiguousarray(rotor, dtype=float), np.ascontiguousarray(springs, dtype=float),
-        *observer_term_table(friction),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the observer's constant tables packed (floats, ints) and its scratch.
+
+    Counts, gains, the kinematic chain, the body in motor coordinates and the friction's term
+    table (:mod:`~teleop_force.packed_tables`: one crossing into compiled code costs ~70 ns
+    per array argument): what :func:`count_observer_step` and :func:`observe_counts` take
+    after their samples.
+    """
+    rows, reach, parameters = observer_term_table(friction)
+    floats, ints = pack(
+        [
+            count_rad, np.array([COUNT_VELOCITY_GAIN, COUNT_TORQUE_GAIN]), chain.axis,
+            chain.rotation, chain.translation, chain.mass, chain.com, chain.inertia,
+            chain.gravity, coupling, rotor, np.reshape(springs, (-1, 3)), rows, reach,
+            parameters,
+        ],
+        [chain.parent, chain.kind, chain.velocity_index],
     )  # fmt: skip
+    n_model, n = np.shape(coupling)
+    return floats, ints, np.zeros(scratch_size(n, n_model, chain.n_bodies))
 
 
 def observer_term_table(friction: FrictionModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

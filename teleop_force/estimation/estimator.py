@@ -53,7 +53,6 @@ import pinocchio as pin
 
 from teleop_force.errors import ConfigurationError, DataError, ModelError, SingularityError
 from teleop_force.estimation.count_observer import count_observer_step, observer_tables
-from teleop_force.estimation.count_observer import scratch_size as count_scratch_size
 from teleop_force.estimation.count_observer import state_size as count_state_size
 from teleop_force.estimation.fused_step import StepTables, fused_step
 from teleop_force.estimation.kernels import (
@@ -293,20 +292,12 @@ class _CountObserver:
             raise ConfigurationError(
                 f"{model.robot}: the count observer needs a chain of revolute or prismatic joints"
             )
-        coupling = estimator._coupling
         out = np.zeros(n)
-        arguments = (
-            observer_tables(
-                np.array(counts),
-                tables,
-                coupling,
-                estimator._rotor,
-                estimator._springs,
-                model.friction,
-            ),
-            np.zeros(count_scratch_size(n, coupling.shape[0], tables.n_bodies)),
-            out,
-        )
+        floats, ints, scratch = observer_tables(
+            np.array(counts), tables, estimator._coupling, estimator._rotor, estimator._springs,
+            model.friction,
+        )  # fmt: skip
+        arguments = (floats, ints, scratch, out)
         return _CountObserver(np.zeros(count_state_size(n)), out, arguments)
 
 

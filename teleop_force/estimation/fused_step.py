@@ -26,11 +26,9 @@ encoding, a friction without term table); the estimator then runs the two halves
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
-from teleop_force.compiled import njit_cached, view_2d, view_3d
+from teleop_force.compiled import njit_cached, view_2d
 from teleop_force.estimation.kernels import (
     RIGID_MOMENTA,
     RIGID_NONE,
@@ -46,6 +44,7 @@ from teleop_force.estimation.rigid_chain import (
     chain_tip_jacobian_into,
     chain_work_size,
 )
+from teleop_force.packed_tables import pack, slot_1d, slot_2d, slot_3d, slot_size
 
 # Float slots of the constant tables.
 F_SCALARS, F_COUPLING, F_ROTOR, F_SPRINGS, F_OFFSETS, F_LINEAR_TABLE = 0, 1, 2, 3, 4, 5
@@ -68,66 +67,6 @@ N_NETWORK_INT_SLOTS = 3
 N_SCALARS = 7
 G_LAG, G_RIGID, G_TIP, G_MODE, G_TIP_BODY, G_OBSERVER, G_PREFILTER_STAGES = 0, 1, 2, 3, 4, 5, 6
 N_FLAGS = 7
-#: Entries per slot in a header: offset, then three dimensions (unused ones are 1).
-HEADER_WIDTH = 4
-
-
-def pack(
-    float_arrays: Sequence[np.ndarray], int_arrays: Sequence[np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pack arrays (up to 3-D) into ``(floats, ints)``; ``ints`` starts with the header.
-
-    The header holds ``HEADER_WIDTH`` entries per slot, float slots first: the offset in its
-    buffer (the int offsets count from the buffer's start, header included) and the shape.
-    """
-    n_slots = len(float_arrays) + len(int_arrays)
-    header = np.zeros(HEADER_WIDTH * n_slots, dtype=np.int64)
-    chunks_f: list[np.ndarray] = []
-    chunks_i: list[np.ndarray] = [header]
-    offset_f = 0
-    offset_i = header.size
-    for slot, array in enumerate([*float_arrays, *int_arrays]):
-        is_float = slot < len(float_arrays)
-        a = np.asarray(array, dtype=float if is_float else np.int64)
-        if a.ndim > 3:
-            raise ValueError(f"slot {slot}: at most 3 dimensions, got {a.ndim}")
-        shape = (*a.shape, 1, 1, 1)[:3]
-        header[HEADER_WIDTH * slot] = offset_f if is_float else offset_i
-        header[HEADER_WIDTH * slot + 1 : HEADER_WIDTH * slot + 4] = shape
-        flat = a.reshape(-1)
-        if is_float:
-            chunks_f.append(flat)
-            offset_f += flat.size
-        else:
-            chunks_i.append(flat)
-            offset_i += flat.size
-    floats = np.ascontiguousarray(np.concatenate(chunks_f) if chunks_f else np.zeros(0))
-    ints = np.ascontiguousarray(np.concatenate(chunks_i), dtype=np.int64)
-    return floats, ints
-
-
-@njit_cached(inline="always")
-def _size(ints: np.ndarray, slot: int) -> int:  # pragma: no cover - compiled
-    h = HEADER_WIDTH * slot
-    return int(ints[h + 1] * ints[h + 2] * ints[h + 3])
-
-
-@njit_cached(inline="always")
-def _v1(buffer: np.ndarray, ints: np.ndarray, slot: int) -> np.ndarray:  # pragma: no cover
-    o = ints[HEADER_WIDTH * slot]
-    return buffer[o : o + _size(ints, slot)]
-
-
-@njit_cached(inline="always")
-def _v2(buffer: np.ndarray, ints: np.ndarray, slot: int) -> np.ndarray:  # pragma: no cover
-    h = HEADER_WIDTH * slot
-    return view_2d(buffer, ints[h], ints[h + 1], ints[h + 2])
-
-
-@njit_cached(inline="always")
-def _v3(buffer: np.ndarray, ints: np.ndarray, slot: int) -> np.ndarray:  # pragma: no cover
-    h = HEADER_WIDTH * slot
-    return view_3d(buffer, ints[h], ints[h + 1], ints[h + 2], ints[h + 3])
 
 
 @njit_cached(inline="always")
@@ -163,11 +102,11 @@ def fused_step(
     tables as packed by :class:`StepTables`; ``linear_parameters`` the friction's (or the
     network fallback's) parameters, read live; ``work`` scratch (:func:`work_size`).
     """
-    scalars = _v1(floats, ints, F_SCALARS)
-    flags = _v1(ints, ints, N_FLOAT_SLOTS + I_FLAGS)
-    coupling = _v2(floats, ints, F_COUPLING)
+    scalars = slot_1d(floats, ints, F_SCALARS)
+    flags = slot_1d(ints, ints, N_FLOAT_SLOTS + I_FLAGS)
+    coupling = slot_2d(floats, ints, F_COUPLING)
     n_model, n = coupling.shape
-    n_bodies = _size(ints, N_FLOAT_SLOTS + I_PARENT)
+    n_bodies = slot_size(ints, N_FLOAT_SLOTS + I_PARENT)
     if work.size < _work_floats(n, n_model, n_bodies) or len(q_rad) != n or len(tau_nm) != n:
         raise ValueError("fused_step: work buffer too small or wrong number of joints")
     sample = work[: 1 + 2 * n]
@@ -198,17 +137,17 @@ def fused_step(
     rigid = flags[G_RIGID] != 0
     rigid_mode = RIGID_MOMENTA if rigid else RIGID_NONE
     tip = flags[G_TIP] != 0
-    parent = _v1(ints, ints, N_FLOAT_SLOTS + I_PARENT)
-    kind = _v1(ints, ints, N_FLOAT_SLOTS + I_KIND)
-    velocity_index = _v1(ints, ints, N_FLOAT_SLOTS + I_VELOCITY_INDEX)
-    axis = _v2(floats, ints, F_AXIS)
-    rotation = _v3(floats, ints, F_ROTATION)
-    translation = _v2(floats, ints, F_TRANSLATION)
+    parent = slot_1d(ints, ints, N_FLOAT_SLOTS + I_PARENT)
+    kind = slot_1d(ints, ints, N_FLOAT_SLOTS + I_KIND)
+    velocity_index = slot_1d(ints, ints, N_FLOAT_SLOTS + I_VELOCITY_INDEX)
+    axis = slot_2d(floats, ints, F_AXIS)
+    rotation = slot_3d(floats, ints, F_ROTATION)
+    translation = slot_2d(floats, ints, F_TRANSLATION)
     if rigid:
-        body_mass = _v1(floats, ints, F_MASS)
-        com = _v2(floats, ints, F_COM)
-        inertia = _v3(floats, ints, F_INERTIA)
-        gravity_world = _v1(floats, ints, F_GRAVITY)
+        body_mass = slot_1d(floats, ints, F_MASS)
+        com = slot_2d(floats, ints, F_COM)
+        inertia = slot_3d(floats, ints, F_INERTIA)
+        gravity_world = slot_1d(floats, ints, F_GRAVITY)
         chain_kinematics_into(
             q_model, parent, kind, axis, rotation, translation, velocity_index, chain_work
         )
@@ -221,25 +160,25 @@ def fused_step(
             q_jacobian, parent, kind, axis, rotation, translation, velocity_index, chain_work
         )
         chain_tip_jacobian_into(
-            parent, velocity_index, flags[G_TIP_BODY], _v1(floats, ints, F_TIP_TRANSLATION),
-            _v1(ints, ints, N_FLOAT_SLOTS + I_TIP_SUPPORT), chain_work, jacobian,
+            parent, velocity_index, flags[G_TIP_BODY], slot_1d(floats, ints, F_TIP_TRANSLATION),
+            slot_1d(ints, ints, N_FLOAT_SLOTS + I_TIP_SUPPORT), chain_work, jacobian,
         )  # fmt: skip
     finish_step(
         state, sample, scalars[S_OMEGA], flags[G_LAG], flags[G_OBSERVER] != 0,
         scalars[S_OMEGA_OBSERVER], scalars[S_OMEGA_OUTPUT], rigid_mode, v_model, momenta,
         momenta, momenta[0], coupling,
-        _v1(floats, ints, F_ROTOR), _v2(floats, ints, F_SPRINGS), tip, jacobian,
+        slot_1d(floats, ints, F_ROTOR), slot_2d(floats, ints, F_SPRINGS), tip, jacobian,
         jacobian_motor, scalars[S_SIGMA_MIN], work[:0], scratch, out, flags[G_MODE],
-        _v1(floats, ints, F_OFFSETS), _v2(floats, ints, F_LINEAR_TABLE), linear_parameters,
-        _v2(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_INPUTS),
-        _v2(network_floats, network_ints, NF_WAVELETS),
-        _v2(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_RUNS),
-        _v1(network_floats, network_ints, NF_PSI),
-        _v2(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_GRID_INTS),
-        _v2(network_floats, network_ints, NF_GRID_FLOATS),
-        _v1(network_floats, network_ints, NF_GRID_VALUES),
-        _v2(ints, ints, N_FLOAT_SLOTS + I_EFFECT_CODES),
-        _v1(floats, ints, F_EFFECT_FLOATS), scalars[S_STANDSTILL_BAND], scalars[S_STICKING_INV],
+        slot_1d(floats, ints, F_OFFSETS), slot_2d(floats, ints, F_LINEAR_TABLE), linear_parameters,
+        slot_2d(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_INPUTS),
+        slot_2d(network_floats, network_ints, NF_WAVELETS),
+        slot_2d(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_RUNS),
+        slot_1d(network_floats, network_ints, NF_PSI),
+        slot_2d(network_ints, network_ints, N_NETWORK_FLOAT_SLOTS + NI_GRID_INTS),
+        slot_2d(network_floats, network_ints, NF_GRID_FLOATS),
+        slot_1d(network_floats, network_ints, NF_GRID_VALUES),
+        slot_2d(ints, ints, N_FLOAT_SLOTS + I_EFFECT_CODES),
+        slot_1d(floats, ints, F_EFFECT_FLOATS), scalars[S_STANDSTILL_BAND], scalars[S_STICKING_INV],
     )  # fmt: skip
     return STEP_OK
 

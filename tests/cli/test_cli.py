@@ -63,7 +63,9 @@ def test_identify_wn_is_the_default_and_round_trips(sessions, capsys) -> None:
     assert "count_observer" not in json.loads(model.read_text())["filter"]
     capsys.readouterr()
     assert main(["evaluate", str(model), str(test), "--json"]) == 0
-    assert len(json.loads(capsys.readouterr().out)["coverage"]) == 3
+    payload = json.loads(capsys.readouterr().out)
+    assert len(payload["coverage"]) == 3
+    assert payload["count_observer"] is False  # identified with --no-count-observer
 
 
 BAD_FILES = {

@@ -60,18 +60,13 @@ def _observe(model: DynamicModel, session, starts=None) -> np.ndarray:
     if starts is not None:
         mask[list(starts)] = True
     springs = np.array([[1.0, SPRING_STIFFNESS_NM_PER_RAD, np.pi / 2]])
-    tables = observer_tables(
+    floats, ints, scratch = observer_tables(
         np.array(model.filter_config.count_rad or COUNTS),
         chain_tables(robot.model, robot.description.tip_frame), robot.coupling,
         robot.description.rotor_inertia_kgm2, springs, model.friction,
     )  # fmt: skip
-    return observe_counts(
-        np.asarray(session.t_s),
-        np.ascontiguousarray(session.q_rad),
-        np.ascontiguousarray(session.tau_nm),
-        mask,
-        tables,
-    )
+    t, q, tau = (np.ascontiguousarray(x) for x in (session.t_s, session.q_rad, session.tau_nm))
+    return observe_counts(t, q, tau, mask, floats, ints, scratch)
 
 
 def test_observed_angles_stay_within_each_reading_and_move_between_counts(session) -> None:

@@ -5,12 +5,12 @@ import pytest
 
 from teleop_force.errors import DataError
 from teleop_force.estimation.estimator import ForceEstimator
-from teleop_force.estimation.fused_step import HEADER_WIDTH, pack
 from teleop_force.friction.coulomb_viscous import CoulombViscous, CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.effects import BasisSpec, FoundEffect
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.identification.regressor import RigidBodyRegressor, full_parameters
+from teleop_force.packed_tables import HEADER_WIDTH, pack
 from teleop_force.robots.omni import SPRING_STIFFNESS_NM_PER_RAD, omni_description
 from tests.estimation.network_cases import CV_PARAMETERS, random_network
 

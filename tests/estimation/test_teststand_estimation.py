@@ -179,3 +179,15 @@ def test_a_sticking_stand_model_file_carries_its_state(tmp_path: Path) -> None:
     assert not np.allclose(sticky.tau_external_nm, plain.tau_external_nm, atol=1e-6)
     with pytest.raises(ConfigurationError, match="cv"):
         command([recording], description, "coupled-cv", out, lambda _: None, sticking=True)
+
+
+def test_the_stand_takes_no_count_observer(tmp_path: Path, capsys) -> None:
+    """Its identification has its own path: asking for the count observer is an error."""
+    from teleop_force.cli.main import main
+
+    folder = require("teststand")
+    model = tmp_path / "m.json"
+    assert main(["identify", str(folder), "--robot", "teststand", "--count-observer", "-o",
+                 str(model)]) == 2  # fmt: skip
+    assert "count-observer" in capsys.readouterr().err
+    assert not model.exists()
