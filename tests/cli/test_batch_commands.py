@@ -101,7 +101,10 @@ def test_evaluate_reports_the_streaming_torques(tmp_path, model, palpation, caps
         paths.append(path)
     assert main(["evaluate", str(DEFAULT_MODEL_PATH), *map(str, paths), "--json"]) == 0
     payload = json.loads(capsys.readouterr().out)
-    assert set(payload) == {"relative_rms", "samples", "coverage", "friction", "robot", "estimator"}
+    assert set(payload) == {
+        "relative_rms", "samples", "coverage", "friction", "robot", "estimator", "count_observer",
+    }  # fmt: skip
+    assert payload["count_observer"] is True  # the shipped model's
     measured, estimated, on_ground = [], [], []
     for rows in (slice(0, 1500), slice(1000, 2500)):
         tr = t[rows] - t[rows][0]
