@@ -3,9 +3,10 @@
 An encoder reads the angle to within one count ``c`` (a fraction of a milliradian on the
 Omni). Every estimator of the contact force differentiates the angle (the momentum ``M qd``,
 the friction's velocity), so the counts are what bounds its bandwidth: fed the plant's true
-angles, the same estimators err 9-30 % less on plant family one and 32-45 % less on family
-two (docs/accuracy/low_speed.md). This observer gives them angles that move between the
-counts, the way the arm does.
+angles, the default estimator errs 9 % less on plant family one and 32 % less on family two,
+the best estimator 27 % and 44 % less than the best on the counts
+(docs/accuracy/low_speed.md). This observer gives them angles that move between the counts,
+the way the arm does.
 
 Per joint it keeps the angle ``q``, the momentum ``p`` and a disturbance torque ``d`` (the
 external torque and what the model lacks), and per sample (``dt``):
