@@ -254,7 +254,7 @@ class BatchEstimator:
             )
         floats, ints, scratch = observer_tables(
             self._count_rad(q), self._tables, self._coupling, self._rotor, self._springs,
-            self.model.friction,
+            ModelTerms(self.model),
         )  # fmt: skip
         return np.asarray(observe_counts(t, q, tau, starts, floats, ints, scratch))
 

@@ -45,17 +45,21 @@ from typing import Any
 import numpy as np
 
 from teleop_force.compiled import njit_cached, view_2d
-from teleop_force.estimation.kernels import STEP_NON_FINITE, STEP_OK, STEP_TIME_NOT_INCREASING
+from teleop_force.estimation.kernels import (
+    STEP_NON_FINITE,
+    STEP_OK,
+    STEP_TIME_NOT_INCREASING,
+    ModelTerms,
+    linear_map_into,
+    momenta_to_motor_into,
+)
 from teleop_force.estimation.rigid_chain import (
     ChainTables,
     chain_kinematics_into,
     chain_momentum_into,
     chain_work_size,
 )
-from teleop_force.friction.base import FrictionModel
-from teleop_force.friction.coulomb_viscous import TermTableFriction
 from teleop_force.friction.terms import linear_friction_torque_into
-from teleop_force.friction.wavelet_network import WaveletNetwork
 from teleop_force.packed_tables import pack, slot_1d, slot_2d, slot_3d
 
 #: The velocity gain ``k_v`` (module docstring), chosen on plant family one, seeds 1-3.
@@ -77,7 +81,7 @@ def state_size(n: int) -> int:  # pragma: no cover - compiled
 @njit_cached()
 def scratch_size(n: int, n_model: int, n_bodies: int) -> int:  # pragma: no cover - compiled
     """Floats of the step's scratch (matrices, model-coordinate vectors, the chain's work)."""
-    return 2 * n * n + 5 * n + n_model * n_model + 5 * n_model + chain_work_size(n_bodies)
+    return 2 * n * n + 5 * n + 4 * n_model + 3 * n + chain_work_size(n_bodies)
 
 
 @njit_cached()
@@ -114,60 +118,39 @@ def _mass_and_other_into(
     mass: np.ndarray,
     other: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """``M(q)`` and ``g - C^T v + springs`` in motor coordinates (rotor inertia included)."""
+    """``M(q)`` and ``g - C^T v + springs`` in motor coordinates (rotor inertia included).
+
+    The compiled chain's model-coordinate terms mapped to the motors as the estimator's step
+    maps them (:func:`~teleop_force.estimation.kernels.momenta_to_motor_into`); column ``j`` of
+    ``M`` is the momentum of a unit velocity of motor ``j``.
+    """
     parent, kind, axis, rotation, translation, velocity_index = tables[3:9]
     link_mass, com, inertia, gravity, coupling, rotor, springs = tables[9:16]
     n_model, n = coupling.shape
     q_model = scratch[0:n_model]
     v_model = scratch[n_model : 2 * n_model]
-    momentum_model = scratch[2 * n_model : 3 * n_model]
-    other_model = scratch[3 * n_model : 4 * n_model]
-    unit = scratch[4 * n_model : 5 * n_model]
-    columns = view_2d(scratch, 5 * n_model, n_model, n_model)
-    work = scratch[5 * n_model + n_model * n_model :]
-    for i in range(n_model):
-        wq = 0.0
-        wv = 0.0
-        for j in range(n):
-            c = coupling[i, j]
-            if c != 0.0:
-                wq += c * q[j]
-                wv += c * v[j]
-        q_model[i] = wq
-        v_model[i] = wv
+    momenta = view_2d(scratch, 2 * n_model, 2, n_model)
+    unit = scratch[4 * n_model : 4 * n_model + n]
+    momentum = scratch[4 * n_model + n : 4 * n_model + 2 * n]
+    discarded = scratch[4 * n_model + 2 * n : 4 * n_model + 3 * n]
+    work = scratch[4 * n_model + 3 * n :]
+    linear_map_into(coupling, q, q_model)
     chain_kinematics_into(q_model, parent, kind, axis, rotation, translation, velocity_index, work)
-    chain_momentum_into(
-        v_model, parent, velocity_index, link_mass, com, inertia, gravity, work, momentum_model,
-        other_model,
-    )  # fmt: skip
-    for j in range(n):
-        w = 0.0
-        for i in range(n_model):
-            w += coupling[i, j] * other_model[i]
-        other[j] = w
-    for s in range(springs.shape[0]):
-        j = int(springs[s, 0])
-        other[j] += springs[s, 1] * (q[j] - springs[s, 2])
-    for i in range(n_model):
-        for r in range(n_model):
-            unit[r] = 0.0
-        unit[i] = 1.0
+    for j in range(-1, n):  # the velocity v, then each motor's unit velocity
+        if j >= 0:
+            unit[:] = 0.0
+            unit[j] = 1.0
+        velocity = v if j < 0 else unit
+        linear_map_into(coupling, velocity, v_model)
         chain_momentum_into(
-            unit, parent, velocity_index, link_mass, com, inertia, gravity, work, momentum_model,
-            other_model,
+            v_model, parent, velocity_index, link_mass, com, inertia, gravity, work, momenta[0],
+            momenta[1],
         )  # fmt: skip
-        for r in range(n_model):
-            columns[r, i] = momentum_model[r]
-    for a in range(n):
-        for b in range(n):
-            w = 0.0
-            for r in range(n_model):
-                car = coupling[r, a]
-                if car != 0.0:
-                    for c in range(n_model):
-                        w += car * columns[r, c] * coupling[c, b]
-            mass[a, b] = w
-        mass[a, a] += rotor[a]
+        if j < 0:
+            momenta_to_motor_into(q, v, momenta, coupling, rotor, springs, momentum, other)
+        else:
+            momenta_to_motor_into(q, unit, momenta, coupling, rotor, springs, momentum, discarded)
+            mass[:, j] = momentum
 
 
 #: Slots of the packed tables (:func:`observer_tables`): floats, then ints.
@@ -381,16 +364,17 @@ def observer_tables(
     coupling: np.ndarray,
     rotor: np.ndarray,
     springs: np.ndarray,
-    friction: FrictionModel,
+    terms: ModelTerms,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return the observer's constant tables packed (floats, ints) and its scratch.
 
-    Counts, gains, the kinematic chain, the body in motor coordinates and the friction's term
-    table (:mod:`~teleop_force.packed_tables`: one crossing into compiled code costs ~70 ns
-    per array argument): what :func:`count_observer_step` and :func:`observe_counts` take
-    after their samples.
+    Counts, gains, the kinematic chain, the body in motor coordinates and the model's
+    Coulomb-viscous terms (:meth:`~teleop_force.estimation.kernels.ModelTerms.term_table`)
+    (:mod:`~teleop_force.packed_tables`: one crossing into compiled code costs ~70 ns per
+    array argument): what :func:`count_observer_step` and :func:`observe_counts` take after
+    their samples.
     """
-    rows, reach, parameters = observer_term_table(friction)
+    rows, reach, parameters = terms.term_table()
     floats, ints = pack(
         [
             count_rad, np.array([COUNT_VELOCITY_GAIN, COUNT_TORQUE_GAIN]), chain.axis,
@@ -402,24 +386,3 @@ def observer_tables(
     )  # fmt: skip
     n_model, n = np.shape(coupling)
     return floats, ints, np.zeros(scratch_size(n, n_model, chain.n_bodies))
-
-
-def observer_term_table(friction: FrictionModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return the Coulomb-viscous terms the observer predicts with: ``rows, reach, parameters``.
-
-    The friction's own (CV, coupled CV), a wavelet network's CV fallback, else no terms.
-    """
-    table = friction
-    if isinstance(friction, WaveletNetwork) and friction.fallback is not None:
-        table = friction.fallback
-    if isinstance(table, TermTableFriction):
-        rows, reach = table.term_table()
-        parameters = table.parameters
-    else:
-        n = friction.n_joints
-        rows, reach, parameters = np.zeros((0, n)), np.zeros((0, n)), np.zeros(0)
-    return (
-        np.ascontiguousarray(rows, dtype=float),
-        np.ascontiguousarray(reach, dtype=float),
-        np.ascontiguousarray(parameters, dtype=float),
-    )

@@ -287,15 +287,15 @@ class _CountObserver:
             raise ConfigurationError(
                 f"the count observer needs the filter's count_rad, one per joint (got {counts})"
             )
-        tables = chain_tables(robot.model, robot.description.tip_frame)
-        if tables is None:
+        chain = estimator._chain
+        if chain is None:
             raise ConfigurationError(
                 f"{model.robot}: the count observer needs a chain of revolute or prismatic joints"
             )
         out = np.zeros(n)
         floats, ints, scratch = observer_tables(
-            np.array(counts), tables, estimator._coupling, estimator._rotor, estimator._springs,
-            model.friction,
+            np.array(counts), chain, estimator._coupling, estimator._rotor, estimator._springs,
+            estimator._terms,
         )  # fmt: skip
         arguments = (floats, ints, scratch, out)
         return _CountObserver(np.zeros(count_state_size(n)), out, arguments)
@@ -334,6 +334,11 @@ class ForceEstimator:
         self._omega_observer = _TWO_PI * config.observer_hz
         self._omega_output = _TWO_PI * config.estimator_output_hz
         self._allocate()
+        robot = self.robot
+        #: The kinematic chain in arrays (None without a body, or for joints it does not encode)
+        self._chain = (
+            None if robot is None else chain_tables(robot.model, robot.description.tip_frame)
+        )
         self._counts = _CountObserver.create(self) if config.count_observer else None
         self._tables = self._fused_tables() if fused else None
         #: The fused step's table arguments and, after them, its full argument tail (kept
@@ -355,7 +360,7 @@ class ForceEstimator:
         except ModelError:  # e.g. a network without fallback: raised by step, as the halves do
             return None
         return StepTables.create(
-            self._terms, chain_tables(robot.model, robot.description.tip_frame),
+            self._terms, self._chain,
             coupling=self._coupling, rotor=self._rotor, springs=self._springs,
             omega_v=self._omega_v, prefilter_stages=self._prefilter_stages, omega=self._omega,
             omega_observer=self._omega_observer, omega_output=self._omega_output,
@@ -406,8 +411,9 @@ class ForceEstimator:
         ``q_rad`` and ``tau_nm``: arrays or tuples of floats (the fastest), or sequences.
         """
         counts = self._counts
-        if counts is not None:
-            q_rad = self._observe_counts(counts, t_s, q_rad, tau_nm)
+        if counts is not None:  # the count observer's angles replace the readings
+            self._compiled(count_observer_step, counts.state, t_s, q_rad, tau_nm, counts.arguments)
+            q_rad = counts.out
         tables = self._tables
         if tables is not None:
             return self._fused_step(tables, t_s, q_rad, tau_nm)
@@ -478,17 +484,6 @@ class ForceEstimator:
         if self._has_tip and not self._tip_kernel:
             self._tip_force_python(q_rad, self._out)
         return self._out
-
-    def _observe_counts(
-        self,
-        counts: _CountObserver,
-        t_s: float,
-        q_rad: Sequence[float] | np.ndarray,
-        tau_nm: Sequence[float] | np.ndarray,
-    ) -> np.ndarray:
-        """Return the count observer's angles of this reading (DataError on a bad sample)."""
-        self._compiled(count_observer_step, counts.state, t_s, q_rad, tau_nm, counts.arguments)
-        return counts.out
 
     def _compiled(
         self,

@@ -254,6 +254,7 @@ class ModelTerms:
         self._psi = np.zeros(0)  # the wavelets' scratch
         self._versions: tuple[int, int, int] = (-1, -1, -1)
         table_friction = self.friction if self.network is None else self.network.fallback
+        self._table_friction = table_friction
         sticking_table = _term_table(table_friction, n)
         rad = 0.0 if sticking_table is None else sticking_rad_of(self.friction)
         #: ``1 / transition angle`` [1/rad] of the term table's sticking state (0: none), the
@@ -292,6 +293,20 @@ class ModelTerms:
         self._coverage = coverage
         self._grids = None if coverage is None else _CoverageGrids(coverage)
         self._versions = (-1, -1, -1)
+
+    def term_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the Coulomb-viscous terms: ``rows``, ``reach`` and their live ``parameters``.
+
+        The friction's own, or a network's fallback (the table the friction modes evaluate
+        without the network); no terms for a friction without one.
+        """
+        n = self.n
+        friction = self._table_friction
+        table = None if friction is None else _term_table(friction, n)
+        if friction is None or table is None:
+            return np.zeros((0, n)), np.zeros((0, n)), np.zeros(0)
+        parameters = np.ascontiguousarray(friction.parameters, dtype=float)
+        return np.ascontiguousarray(table[:, :n]), np.ascontiguousarray(table[:, n:]), parameters
 
     def arguments(self) -> tuple[Any, ...]:
         """Return the model's arguments of :func:`add_model_terms` (``mode`` ... ``1 / phi``)."""

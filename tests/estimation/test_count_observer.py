@@ -14,9 +14,9 @@ from teleop_force.estimation.batch import BatchEstimator
 from teleop_force.estimation.count_observer import (
     observe_counts,
     observer_tables,
-    observer_term_table,
 )
 from teleop_force.estimation.estimator import ForceEstimator, equivalent_rigid_body
+from teleop_force.estimation.kernels import ModelTerms
 from teleop_force.estimation.rigid_chain import chain_tables
 from teleop_force.friction.coulomb_viscous import CoupledCoulombViscous
 from teleop_force.identification.dynamic_model import DynamicModel
@@ -63,7 +63,7 @@ def _observe(model: DynamicModel, session, starts=None) -> np.ndarray:
     floats, ints, scratch = observer_tables(
         np.array(model.filter_config.count_rad or COUNTS),
         chain_tables(robot.model, robot.description.tip_frame), robot.coupling,
-        robot.description.rotor_inertia_kgm2, springs, model.friction,
+        robot.description.rotor_inertia_kgm2, springs, ModelTerms(model),
     )  # fmt: skip
     t, q, tau = (np.ascontiguousarray(x) for x in (session.t_s, session.q_rad, session.tau_nm))
     return observe_counts(t, q, tau, mask, floats, ints, scratch)
@@ -105,11 +105,12 @@ def test_a_stream_restarts_from_its_first_reading(session) -> None:
 
 def test_the_term_table_is_the_friction_or_a_network_fallback() -> None:
     network = random_network(0, 40, 0.15)
-    rows, reach, parameters = observer_term_table(network)
-    own = observer_term_table(network.fallback)
+    rows, reach, parameters = ModelTerms(_model(network)).term_table()
+    own = ModelTerms(_model(network.fallback)).term_table()
     for a, b in zip((rows, reach, parameters), own, strict=True):
         np.testing.assert_array_equal(a, b)
     assert rows.shape[0] > 0
+    np.testing.assert_array_equal(parameters, network.fallback.parameters)
 
 
 def test_the_streaming_estimator_needs_the_counts_and_a_rigid_body() -> None:
