@@ -15,7 +15,10 @@ a noisy machine (see BENCHMARKS.md for a full run and what was optimised):
 5. the service's peak memory, and how the figures grow with the number of wavelets per
    joint network and with the recording's length;
 6. ``estimate`` and the re-estimation of a recording on a 10-minute session, from the CLI,
-   process start included (:mod:`teleop_force.bench.batch`).
+   process start included (:mod:`teleop_force.bench.batch`);
+7. the cold start: from the ``demo`` command to its first estimate on an empty numba cache,
+   the compile time of each kernel group, and the same on the warm cache
+   (:mod:`teleop_force.bench.cold_start`), with the shipped model.
 
 Inputs are generated (:mod:`teleop_force.bench.data`). :func:`run_bench` returns one dict
 whose keys name the figure and its unit; ``teleop-force bench --json`` prints it as one JSON
@@ -92,6 +95,8 @@ class BenchOptions:
         isolated_replays: One worker process per replay (clean memory figures).
         batch: Time ``estimate`` and the re-estimation of a recording from the CLI.
         batch_session_s: Length of the session of the batch figures.
+        cold_start: Run the cold-start figures (two demos, the first on an empty numba cache).
+        cold_start_duration_s: How long each of those demos runs from its first estimate.
         work_dir: Where models and sessions are written (default: a temporary folder).
         seed: Seed of every simulation.
 
@@ -112,6 +117,8 @@ class BenchOptions:
     isolated_replays: bool = True
     batch: bool = True
     batch_session_s: float = 600.0
+    cold_start: bool = True
+    cold_start_duration_s: float = 5.0
     work_dir: Path | None = None
     seed: int = 0
 
@@ -128,6 +135,7 @@ class BenchOptions:
             "replay_wavelets_length_s": 0.5,
             "isolated_replays": False,
             "batch_session_s": 5.0,
+            "cold_start_duration_s": 2.0,
         }
         values.update(changes)
         return cls(**values)
@@ -155,7 +163,8 @@ def _versions() -> dict[str, str]:
 
 def _parts(options: BenchOptions) -> list[str]:
     flags = {"estimation": options.estimation, "replay": options.replay,
-             "messaging": options.messaging, "batch": options.batch}  # fmt: skip
+             "messaging": options.messaging, "batch": options.batch,
+             "cold-start": options.cold_start}  # fmt: skip
     return ["identification"] + [name for name, on in flags.items() if on]
 
 
@@ -236,6 +245,11 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
             result.update(_guarded_part(
                 "batch", options.batch, _BATCH_KEYS,
                 lambda: _batch_figures(options, bench_model.path, work_dir, log), log,
+            ))  # fmt: skip
+            # 7. the cold start, from the command to the first estimate
+            result.update(_guarded_part(
+                "cold_start", options.cold_start, _COLD_START_KEYS,
+                lambda: _cold_start_figures(options, log), log,
             ))  # fmt: skip
         result["bench_wall_s"] = round(total.wall_s, 2)
         result["bench_cpu_s"] = round(total.cpu_s, 2)
@@ -507,6 +521,12 @@ def _batch_figures(
     return batch_figures(model_path, work_dir, log, duration_s=options.batch_session_s)
 
 
+def _cold_start_figures(options: BenchOptions, log: Callable[[str], None]) -> dict[str, Any]:
+    from teleop_force.bench.cold_start import measure_cold_start
+
+    return measure_cold_start(options.cold_start_duration_s, None, log)
+
+
 def _messaging_figures(
     options: BenchOptions, model_path: Path, log: Callable[[str], None]
 ) -> dict[str, Any]:
@@ -539,7 +559,7 @@ _ESTIMATION_KEYS = (
 )  # fmt: skip
 #: Parts of ``teleop-force bench`` that ``--only`` selects (identification always runs: its
 #: model is the benchmark model of the others).
-PARTS = ("identification", "estimation", "replay", "messaging", "batch")
+PARTS = ("identification", "estimation", "replay", "messaging", "batch", "cold-start")
 
 _REPLAY_KEYS = (
     "replay_x_realtime", "replay_peak_rss_mb", "replay_x_realtime_by_length_s",
@@ -557,6 +577,15 @@ _MESSAGING_KEYS = (
     "service_cpu_percent_at_1khz", "service_zenoh_floor_cpu_percent",
     "service_cpu_above_floor_points", "demo_cpu_percent_total", "demo_slave_holds",
     "demo_loop_overrun_fraction", "demo_loop_ticks_fraction",
+)  # fmt: skip
+
+_COLD_START_KEYS = tuple(
+    f"{run}_{name}"
+    for run in ("cold_start", "warm_start")
+    for name in (
+        "first_estimate_s", "warm_up_s", "warm_up_cached", "compile_s_by_group", "up_after_s",
+        "estimated_fraction",
+    )
 )  # fmt: skip
 
 _BATCH_KEYS = (
@@ -580,6 +609,9 @@ def add_bench_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-messaging", action="store_true", help="skip the demo (latency, loss)")
     parser.add_argument("--no-replay", action="store_true", help="skip the replay figures")
+    parser.add_argument(
+        "--no-cold-start", action="store_true", help="skip the cold start (two demos, ~1 min)"
+    )
     parser.add_argument(
         "--messaging-duration",
         type=float,
@@ -633,6 +665,7 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
         "messaging": not args.no_messaging and "messaging" in parts,
         "replay": not args.no_replay and "replay" in parts,
         "batch": "batch" in parts,
+        "cold_start": not args.no_cold_start and "cold-start" in parts,
         "messaging_model": args.messaging_model,
     }
     if args.messaging_duration is not None:

@@ -41,11 +41,13 @@ def run_demo(
     model_path: Path | None = None,
     startup_timeout_s: float = 180.0,
     extra_args: tuple[str, ...] = (),
+    env: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """Run the headless demo for ``duration_s``; return its summary plus the service's peak RSS.
 
     Keys added to the summary: ``service_peak_rss_mb`` (``None`` if it could not be read),
-    ``bench_wall_s``. Raises RuntimeError if the demo fails.
+    ``bench_wall_s``. ``env``: variables set for the demo on top of this process's. Raises
+    RuntimeError if the demo fails.
     """
     with tempfile.TemporaryDirectory(prefix="teleop-bench-demo-") as tmp:
         summary_path = Path(tmp) / "summary.json"
@@ -61,7 +63,7 @@ def run_demo(
         log_path = Path(tmp) / "demo-stdout.txt"
         with open(log_path, "wb") as log:
             proc = subprocess.Popen(
-                argv, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ)
+                argv, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})}
             )
             peak: float | None = None
             service: int | None = None

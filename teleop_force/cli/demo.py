@@ -2,8 +2,12 @@ r"""``teleop-force demo``: master, slave, service (and dashboard) on loopback, s
 
 The supervisor opens the rendezvous Zenoh endpoint ``tcp/127.0.0.1:<free port>`` (peer mode,
 multicast scouting off); every child is a peer that ``--connect``\\ s to it, and Zenoh's gossip
-lets the peers connect to one another. The children start together (their imports overlap);
-each one's liveliness token tells the supervisor it is up:
+lets the peers connect to one another. First the children's compiled kernels are made ready:
+on a machine whose numba cache does not hold them yet, they are compiled in parallel processes,
+one per core, with a progress line per group on stderr
+(:mod:`teleop_force.process.warm_up`); a child then loads them before it declares itself up.
+The children start together (their imports overlap); each one's liveliness token tells the
+supervisor it is up:
 
 1. the force-estimation service (``python -m teleop_force.service.force_service``), recording
    the session to ``recordings/demo-<timestamp>.mcap``;
@@ -15,8 +19,8 @@ each one's liveliness token tells the supervisor it is up:
    ``--headless``, or with a message if ``web/__main__.py`` does not exist yet.
 
 Every second it prints the service's figures (estimated vs true force, rates, lost messages,
-latencies). After ``--duration`` (counted from when the master runs) or on Ctrl-C / SIGTERM it
-collects the final statistics, stops the children (master first) and prints the summary:
+latencies). After ``--duration`` (counted from the service's first estimate) or on Ctrl-C /
+SIGTERM it collects the final statistics, stops the children (master first) and prints the summary:
 messages lost, master -> slave latency, slave -> estimate latency, the force-estimate RMS
 error during contact as a fraction of the RMS true force, the master's and slave's loop
 figures, the slave's holds and the CPU used (``--summary-json`` writes it too).
@@ -43,7 +47,13 @@ unpacks each estimate and true force without building a message object
 
 Summary JSON
 ------------
-``ok``, ``failure``; ``duration_s`` (from when the master runs); ``recording``, ``log``,
+``ok``, ``failure``; ``duration_s`` (from the first estimate); ``first_estimate_s`` (from the
+command's start to the first estimate the supervisor received); ``up_after_s`` {name: s from
+the command's start to its token, ``None``: never}; ``warm_up`` (``cached``, ``seconds``,
+``groups`` {name: {``seconds``, ``ok``}}); ``estimate_coverage`` {``sent_by_slave``,
+``received_by_service``, ``lost_on_the_way``, ``dropped_by_service``, ``estimation_errors``,
+``estimated``, ``estimated_fraction``}: the summary says plainly when the service estimated
+fewer than 99 % of the joint states the slave sent, and why; ``recording``, ``log``,
 ``zenoh_endpoint``, ``pids`` {name: pid}; ``scheduling`` {name: {``policy`` (``fifo`` /
 ``other``), ``priority``, ``nice``}};
 
@@ -99,7 +109,13 @@ import zenoh
 
 from teleop_force.errors import ConfigurationError, DataError, MessageError, TransportError
 from teleop_force.models import DEFAULT_MODEL_PATH
-from teleop_force.process.lifetime import SUPERVISOR_PID_ENV, StopSignal, write_json
+from teleop_force.process.lifetime import (
+    SUPERVISOR_PID_ENV,
+    StopSignal,
+    process_start_wall_ns,
+    write_json,
+)
+from teleop_force.process.warm_up import WarmUpReport, warm_up
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -131,7 +147,7 @@ class DemoConfig:
     """Settings of :func:`run_demo`.
 
     Attributes:
-        duration_s: Run this long once the master runs (``None``: until Ctrl-C).
+        duration_s: Run this long from the first estimate (``None``: until Ctrl-C).
         headless: Do not start the dashboard.
         dashboard_port: HTTP port of the dashboard.
         zenoh_port: Port of the rendezvous endpoint (``None``: a free one).
@@ -355,12 +371,15 @@ class _Presence:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.present: set[str] = set()
+        #: When each token was first seen (ns since the epoch).
+        self.first_seen_ns: dict[str, int] = {}
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self.present.add(key)
+                self.first_seen_ns.setdefault(key, time.time_ns())
             else:
                 self.present.discard(key)
 
@@ -391,6 +410,9 @@ class _Monitor:
         self.estimates = SequenceTracker()
         self.true_forces = SequenceTracker()
         self.malformed = 0
+        #: Publish time (ns since the epoch) and source seq of the first estimate received.
+        self.first_estimate_ns: int | None = None
+        self.first_source_seq: int | None = None
         self.state = "unknown"
         self.reason = ""
         self.holds_seen = 0
@@ -436,10 +458,12 @@ class _Monitor:
 
     def _on_estimate(self, payload: bytes) -> None:
         try:
-            seq, _t_ns, source_seq, force = m.unpack_force_estimate(payload)
+            seq, t_ns, source_seq, force = m.unpack_force_estimate(payload)
         except MessageError:
             self.malformed += 1
             return
+        if self.first_estimate_ns is None:
+            self.first_estimate_ns, self.first_source_seq = t_ns, source_seq
         self.estimates.observe(seq)
         self.accuracy.add_estimate(source_seq, force)
 
@@ -532,6 +556,12 @@ class DemoSupervisor:
         self._own_cpu_at_run = 0.0
         self._load_at_run: list[float] | None = None
         self._scheduling: dict[str, dict[str, Any] | None] = {}
+        self.warm_up: WarmUpReport | None = None
+        #: The liveliness token each started child was waited for by.
+        self._tokens: dict[str, str] = {}
+        #: Seconds from this process's start to the first estimate (``None``: none came).
+        self.first_estimate_s: float | None = None
+        self._start_wall_ns = process_start_wall_ns()
 
     def say(self, message: str) -> None:
         """Print one line for the user."""
@@ -580,7 +610,8 @@ class DemoSupervisor:
             topology = "router, clients" if config.router else "peer mode"
             self.say(f"zenoh endpoint: {self.endpoint} ({topology}, no multicast)")
             self.say(f"recording: {self.recording}   logs: {self.log_path}")
-            if self._start_all(log):
+            self._warm_up()
+            if self._start_all(log) and self._wait_for_first_estimate():
                 self._watch()
             self.ended_s = time.perf_counter()
             final = self._final_stats()
@@ -596,13 +627,68 @@ class DemoSupervisor:
             write_json(config.summary_json, summary)
         return summary
 
+    def _warm_up(self) -> None:
+        """Compile the children's kernels in parallel first, unless they are cached.
+
+        Progress goes to stderr, one line per kernel group; the children then only load them.
+        """
+        self.warm_up = report = warm_up(
+            self.config.model,
+            progress=lambda line: print(line, file=sys.stderr, flush=True),
+        )
+        if not report.cached:
+            self.say(f"kernels compiled in {report.seconds:.1f} s (first run on this machine only)")
+            for group in report.groups:
+                if not group.ok:
+                    self.say(f"warning: {group.name} did not compile ahead: {group.error}")
+
+    def _wait_for_first_estimate(self) -> bool:
+        """Wait for the service's first estimate; the run (and ``--duration``) starts there."""
+        self.say("waiting for the first estimate")
+        deadline = time.perf_counter() + self.config.startup_timeout_s
+        while self.monitor.first_estimate_ns is None:
+            dead = [c for c in self.children if c.name != "dashboard" and not c.running()]
+            if self.stop.is_set():
+                self.failure = "interrupted before the first estimate"
+                return False
+            if dead or time.perf_counter() > deadline:
+                self.failure = (
+                    f"{dead[0].name} exited before the first estimate; see {self.log_path}"
+                    if dead
+                    else f"no estimate within {self.config.startup_timeout_s:g} s of start-up: "
+                    f"the service is silent; see {self.log_path}"
+                )
+                self.say(self.failure)
+                return False
+            time.sleep(0.01)
+        self.first_estimate_s = (self.monitor.first_estimate_ns - self._start_wall_ns) * 1e-9
+        self._mark_running()
+        until = "Ctrl-C" if self.config.duration_s is None else f"{self.config.duration_s:g} s"
+        self.say(
+            f"first estimate {self.first_estimate_s:.1f} s after the command "
+            f"(source seq {self.monitor.first_source_seq}); running until {until} (or Ctrl-C)"
+        )
+        return True
+
+    def _mark_running(self) -> None:
+        """Start the run's clock and its CPU and load baselines."""
+        # Full collections of everything imported would stall the monitor for tens of ms.
+        gc.collect()
+        gc.freeze()
+        self.running_s = time.perf_counter()
+        self._cpu_at_run = {c.name: c.cpu_s() for c in self.children}
+        own = os.times()
+        self._own_cpu_at_run = own.user + own.system
+        self._load_at_run = list(os.getloadavg())
+        self._scheduling = {c.name: c.scheduling() for c in self.children}
+
     def _connect_args(self) -> list[str]:
         if self.config.router:
             return ["--mode", "client", "--connect", self.endpoint, "--no-multicast"]
         return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
 
-    def _start_recorder(self, log: IO[bytes]) -> bool:
-        """Start the session recorder and wait for it, so that it records from the first sample.
+    def _start_recorder(self, log: IO[bytes]) -> Child:
+        """Start the session recorder (the slave waits for it: it records from the first sample).
 
         Recording runs in a process of its own, off the service's 1 kHz path
         (:mod:`teleop_force.service.session_recorder`).
@@ -616,7 +702,7 @@ class DemoSupervisor:
         child = Child("recorder", argv, log, nice=config.realtime_nice)
         self.children.append(child)
         self.say(f"started recorder (pid {child.pid})")
-        return self._wait_for_token(child, keys.alive(config.slave, "recorder"))
+        return child
 
     def _start_router(self, log: IO[bytes]) -> None:
         """Start the router on the rendezvous endpoint; wait until it accepts connections."""
@@ -641,8 +727,9 @@ class DemoSupervisor:
         service = ["--device", config.slave, "--master", config.master]
         if config.model is not None:
             service += ["--model", str(config.model)]
-        if config.record and not self._start_recorder(log):
-            return False  # started first: it records from the first sample
+        started: list[tuple[Child, str]] = []
+        if config.record:  # waited for before the slave starts: it records the first sample
+            started.append((self._start_recorder(log), keys.alive(config.slave, "recorder")))
         service += list(config.service_args)
         wait = str(config.startup_timeout_s)
         surface = str(config.surface_y_m)
@@ -671,7 +758,6 @@ class DemoSupervisor:
         # master once the slave subscribes to its setpoints. With a recorder (a subscriber of
         # every joint state too), the slave starts only once the service is up, so that the
         # service sees the stream from its first sample.
-        started: list[tuple[Child, str]] = []
         for name, module, args, token in steps:
             if name == "slave" and config.record:
                 for child, waited in started:
@@ -688,18 +774,8 @@ class DemoSupervisor:
             if not self._wait_for_token(child, token):
                 return False
         self._start_dashboard(log)
-        # Full collections of everything imported would stall the monitor for tens of ms.
-        gc.collect()
-        gc.freeze()
-        self.running_s = time.perf_counter()
-        self._cpu_at_run = {c.name: c.cpu_s() for c in self.children}
-        own = os.times()
-        self._own_cpu_at_run = own.user + own.system
-        self._load_at_run = list(os.getloadavg())
-        self._scheduling = {c.name: c.scheduling() for c in self.children}
-        startup = self.running_s - self.started_s
-        until = "Ctrl-C" if config.duration_s is None else f"{config.duration_s:g} s (or Ctrl-C)"
-        self.say(f"all processes up in {startup:.1f} s; running until {until}")
+        startup = time.perf_counter() - self.started_s
+        self.say(f"all processes up in {startup:.1f} s")
         return True
 
     def _start_dashboard(self, log: IO[bytes]) -> None:
@@ -723,6 +799,7 @@ class DemoSupervisor:
 
     def _wait_for_token(self, child: Child, token: str) -> bool:
         deadline = time.perf_counter() + self.config.startup_timeout_s
+        self._tokens[child.name] = token
         while not self.presence.has(token):
             if self.stop.is_set():
                 self.failure = "interrupted during start-up"
@@ -742,6 +819,16 @@ class DemoSupervisor:
                 return False
             time.sleep(0.02)
         return True
+
+    def _up_after_s(self) -> dict[str, float | None]:
+        """Seconds from this process's start to each waited-for child's token (None: never)."""
+        seen = self.presence.first_seen_ns
+        return {
+            name: None
+            if token not in seen
+            else round((seen[token] - self._start_wall_ns) * 1e-9, 3)
+            for name, token in self._tokens.items()
+        }
 
     def _watch(self) -> None:
         config = self.config
@@ -855,10 +942,17 @@ class DemoSupervisor:
         estimate_latency = (service or {}).get("latency_ms") or {}
         accuracy = self.monitor.accuracy.summary()
         running = self.ended_s - self.running_s if self.running_s else 0.0
+        coverage = _estimate_coverage(service, slave)
         return {
             "ok": not self.failure,
             "failure": self.failure,
             "duration_s": round(running, 3),
+            "first_estimate_s": (
+                None if self.first_estimate_s is None else round(self.first_estimate_s, 3)
+            ),
+            "up_after_s": self._up_after_s(),
+            "warm_up": None if self.warm_up is None else self.warm_up.summary(),
+            "estimate_coverage": coverage,
             "recording": str(self.recording),
             "log": str(self.log_path),
             "zenoh_endpoint": self.endpoint,
@@ -923,6 +1017,17 @@ class DemoSupervisor:
         if summary["failure"]:
             self.say(f"FAILED: {summary['failure']}")
         self.say(f"duration: {summary['duration_s']:.1f} s   recording: {summary['recording']}")
+        first = summary["first_estimate_s"]
+        up = ", ".join(
+            f"{name} {'never' if t is None else f'{t:.1f} s'}"
+            for name, t in summary["up_after_s"].items()
+        )
+        self.say(
+            f"first estimate: {'none' if first is None else f'{first:.1f} s'} after the "
+            f"command; up after: {up}"
+        )
+        for line in _coverage_lines(summary["estimate_coverage"]):
+            self.say(line)
         self.say(
             f"messages lost: {lost['total']} (setpoints at slave {lost['setpoints_at_slave']}, "
             f"joint states at service {lost['joint_states_at_service']}, estimates "
@@ -948,6 +1053,65 @@ class DemoSupervisor:
         cpu = ", ".join(f"{k} {v:.0f}%" for k, v in summary["cpu_percent"].items() if v is not None)
         load = ", ".join(f"{x:.1f}" for x in summary["machine_load_average"])
         self.say(f"CPU while running (% of one core): {cpu}; machine load average {load}")
+
+
+def _estimate_coverage(
+    service: dict[str, Any] | None, slave: dict[str, Any] | None
+) -> dict[str, Any]:
+    """Joint states the slave sent, the service received and estimated, and the fraction."""
+    sent = (slave or {}).get("published_joint_states")
+    joint_states = (service or {}).get("joint_states") or {}
+    estimates = (service or {}).get("estimates") or {}
+    estimated = estimates.get("published")
+    fraction = None
+    if isinstance(sent, int) and isinstance(estimated, int) and sent > 0:
+        fraction = round(estimated / sent, 6)
+    return {
+        "sent_by_slave": sent,
+        "received_by_service": joint_states.get("received"),
+        "lost_on_the_way": joint_states.get("lost"),
+        "dropped_by_service": joint_states.get("overflow_dropped"),
+        "estimation_errors": estimates.get("errors"),
+        "estimated": estimated,
+        "estimated_fraction": fraction,
+    }
+
+
+#: Below this share of the slave's joint states estimated, the summary says so plainly.
+ESTIMATED_FRACTION_EXPECTED: Final = 0.99
+
+
+def _coverage_lines(coverage: dict[str, Any]) -> list[str]:
+    """Return the summary's lines on the estimates against the joint states the slave sent."""
+    sent, estimated = coverage["sent_by_slave"], coverage["estimated"]
+    if sent is None:
+        return ["estimates: unknown: the slave's statistics did not arrive (silent or gone)"]
+    if estimated is None:
+        return [f"estimates: unknown of {sent} joint states: the service's statistics did not "
+                "arrive (silent or gone)"]  # fmt: skip
+    fraction = coverage["estimated_fraction"]
+    line = f"estimates: {estimated} of the {sent} joint states the slave sent"
+    if fraction is None:
+        return [line]
+    line += f" ({fraction:.2%})"
+    if fraction >= ESTIMATED_FRACTION_EXPECTED:
+        return [line]
+    why = [
+        f"{coverage[k]} {label}"
+        for k, label in (
+            ("lost_on_the_way", "lost on the way"),
+            ("dropped_by_service", "dropped by the service"),
+            ("estimation_errors", "refused by the estimator"),
+        )
+        if coverage.get(k)
+    ]
+    received = coverage["received_by_service"]
+    if isinstance(received, int) and received < sent:
+        why.append(f"{sent - received} never reached the service")
+    return [
+        f"WARNING: the service estimated only {fraction:.1%} of the joint states the slave "
+        f"sent ({'; '.join(why) or 'no counter says why'})"
+    ]
 
 
 def run_demo(config: DemoConfig, stop: StopSignal | None = None) -> dict[str, Any]:

@@ -150,7 +150,8 @@ def _mass_and_other_into(
             momenta_to_motor_into(q, v, momenta, coupling, rotor, springs, momentum, other)
         else:
             momenta_to_motor_into(q, unit, momenta, coupling, rotor, springs, momentum, discarded)
-            mass[:, j] = momentum
+            for i in range(n):  # a loop, not a slice: numba's slice copy costs seconds to compile
+                mass[i, j] = momentum[i]
 
 
 #: Slots of the packed tables (:func:`observer_tables`): floats, then ints.
@@ -329,8 +330,11 @@ def _velocity_into(
     mass: np.ndarray, p: np.ndarray, lu: np.ndarray, rhs: np.ndarray, v: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """``v = M^-1 p`` (``M`` kept)."""
-    lu[:, :] = mass
-    rhs[:] = p
+    n = p.size
+    for i in range(n):  # loops, not slices: numba's slice copy costs seconds to compile
+        rhs[i] = p[i]
+        for k in range(n):
+            lu[i, k] = mass[i, k]
     _solve_into(lu, rhs, v)
 
 

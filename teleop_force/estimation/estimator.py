@@ -42,6 +42,7 @@ figures.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 from collections.abc import Sequence
@@ -414,6 +415,36 @@ class ForceEstimator:
         if counts is not None:  # the count observer's angles replace the readings
             self._compiled(count_observer_step, counts.state, t_s, q_rad, tau_nm, counts.arguments)
             q_rad = counts.out
+        return self._step_on_angles(t_s, q_rad, tau_nm)
+
+    def warm_up(self, part: str = "all") -> None:
+        """Compile (or load from numba's cache) what :meth:`step` runs on tuples, then reset.
+
+        The service's samples are tuples of floats, and numba compiles one specialisation per
+        argument type: this runs exactly those. ``part``: ``"all"``, ``"observer"`` (the count
+        observer alone) or ``"step"`` (the rest), so that two processes can compile them in
+        parallel (:mod:`teleop_force.process.warm_up`). ConfigurationError for another part.
+        """
+        if part not in ("all", "observer", "step"):
+            raise ConfigurationError(f"warm_up: part is all, observer or step, got {part!r}")
+        rest = (0.0,) * self.n
+        counts = self._counts
+        with contextlib.suppress(DataError):  # at q = 0 the Jacobian may be singular: no matter
+            for k in range(2):
+                if part == "all":
+                    self.step(k * 1e-3, rest, rest)
+                elif part == "observer" and counts is not None:
+                    self._compiled(
+                        count_observer_step, counts.state, k * 1e-3, rest, rest, counts.arguments
+                    )
+                elif part == "step":
+                    self._step_on_angles(k * 1e-3, rest if counts is None else counts.out, rest)
+        self.reset()
+
+    def _step_on_angles(
+        self, t_s: float, q_rad: Sequence[float] | np.ndarray, tau_nm: Sequence[float] | np.ndarray
+    ) -> np.ndarray:
+        """:meth:`step` after the count observer (``q_rad``: the angles the step runs on)."""
         tables = self._tables
         if tables is not None:
             return self._fused_step(tables, t_s, q_rad, tau_nm)

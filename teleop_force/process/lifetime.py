@@ -12,6 +12,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -103,3 +104,15 @@ def write_json(path: str | Path, payload: Any) -> None:
 def log(prefix: str, message: str) -> None:
     """Print one log line to stderr."""
     print(f"[{prefix}] {message}", file=sys.stderr, flush=True)
+
+
+def process_start_wall_ns() -> int:
+    """When this process started, in ns since the UNIX epoch, to 10 ms (Linux; else: now)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        since_boot_ns = time.clock_gettime_ns(time.CLOCK_BOOTTIME)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return time.time_ns()
+    age_ns = since_boot_ns - start_ticks * 10**9 // os.sysconf("SC_CLK_TCK")
+    return time.time_ns() - age_ns

@@ -66,7 +66,6 @@ Run: ``python -m teleop_force.service.force_service --device slave --connect tcp
 from __future__ import annotations
 
 import argparse
-import contextlib
 import gc
 import json
 import math
@@ -235,7 +234,7 @@ class ForceService:
         self.memory = memory
         self.model, self.model_path = model, model_path
         self.estimator = ForceEstimator(model)
-        _warm_up(self.estimator)
+        self.estimator.warm_up()
         self.n_joints = model.n_joints
         self.allowed_models = model_folders(self.config.models_dirs)
         self.allowed_records = record_folders(self.config.record_dirs)
@@ -255,7 +254,7 @@ class ForceService:
                 device=self.config.device,
                 model_path=None if model_path is None else str(model_path),
                 recording_path=self._recording_path,
-                residual=WatchResidual(self.model),
+                residual=WatchResidual(self.model).warm_up(),
             )
             if self.config.residual_watch and not self.config.zenoh_floor
             else None
@@ -634,7 +633,7 @@ class ForceService:
             self.controls.loads += 1
         if self.residual_watch is not None:
             # a new baseline for the new model, tested with the watch's estimator of it
-            self.residual_watch.reset(model_path=str(path), residual=WatchResidual(model))
+            self.residual_watch.reset(model_path=str(path), residual=WatchResidual(model).warm_up())
         log(ROLE, f"now estimating with {path} ({model.friction.kind})")
         return path
 
@@ -722,34 +721,23 @@ class ForceService:
             }
 
 
-def _warm_up(estimator: ForceEstimator) -> None:
-    """Run the step once and reset, so that the compiled code is loaded before the first sample.
-
-    Loading numba's cached machine code (or compiling it on a machine without a cache) takes
-    from a tenth of a second to seconds: done here, not on the first joint state.
-    """
-    n = estimator.n
-    with contextlib.suppress(TeleopForceError):
-        estimator.step(0.0, [0.0] * n, [0.0] * n)
-        estimator.step(1e-3, [0.0] * n, [0.0] * n)
-    estimator.reset()
-
-
 def _try_estimator(estimator: ForceEstimator, path: Path) -> None:
-    """Run a fresh estimator on a few samples at rest; raise ModelFileError if it misbehaves."""
+    """Run a fresh estimator on a few samples at rest; raise ModelFileError if it misbehaves.
+
+    The samples are tuples of floats, as the service's: the kernels it compiles or loads are
+    the ones the stream runs.
+    """
     description = estimator.model.description()
     lo = np.asarray(description.q_min_rad, dtype=float)
     hi = np.asarray(description.q_max_rad, dtype=float)
     n = estimator.n
     q = 0.5 * (lo + hi) if lo.shape == (n,) and hi.shape == (n,) else np.zeros(n)
-    tau = np.zeros(n)
+    q_rad, tau_nm = tuple(float(x) for x in q), (0.0,) * n
     for k in range(3):
-        result = estimator.update(k * 1e-3, q, tau)
-    if not (
-        np.all(np.isfinite(result.tau_model_filtered_nm))
-        and np.all(np.isfinite(result.tau_external_nm))
-    ):
+        out = estimator.step(k * 1e-3, q_rad, tau_nm)
+    if not np.all(np.isfinite(out[3 : 3 + 3 * n])):  # tau_ext and the filtered torques
         raise ModelFileError("the model gives non-finite torques at rest", path=path)
+    estimator.reset()
 
 
 def _json_preview(value: Any, limit: int = 120) -> str:

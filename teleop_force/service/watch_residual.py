@@ -58,12 +58,33 @@ class WatchResidual:
         self.model = watch_estimator_model(model)
         self.context_samples = int(context_samples)
         self._estimator = BatchEstimator(self.model)
+        description = self.model.description()
+        n = self.model.n_joints
+        lo = np.asarray(description.q_min_rad, dtype=float)
+        hi = np.asarray(description.q_max_rad, dtype=float)
+        #: a pose inside the joint ranges, for :meth:`warm_up`
+        self._q_rest: np.ndarray = 0.5 * (lo + hi) if lo.shape == hi.shape == (n,) else np.zeros(n)
         #: the previous call's last samples: times, angles, torques, run ids, run times
         self._context: tuple[np.ndarray, ...] | None = None
 
     def reset(self) -> None:
         """Forget the previous samples: the next call starts the filters afresh."""
         self._context = None
+
+    def warm_up(self) -> WatchResidual:
+        """Compile (or load from numba's cache) the batch estimator on 0.1 s at rest; return self.
+
+        Run before the service declares itself up: compiled in the watch's thread, the batch
+        would hold the GIL for seconds while the stream waits.
+        """
+        n = self.model.n_joints
+        samples = 100
+        t_s = np.arange(samples) * 1e-3
+        q_rad = np.tile(self._q_rest, (samples, 1))
+        run = np.zeros(samples, dtype=np.int64)
+        self(t_s, q_rad, np.zeros((samples, n)), run, np.zeros(samples))
+        self.reset()
+        return self
 
     def __call__(
         self,

@@ -12,6 +12,7 @@ import pytest
 
 from teleop_force.bench.measure import percentiles
 from teleop_force.process.memory import peak_rss_mb
+from teleop_force.process.warm_up import KERNEL_GROUPS
 
 NUMBERS = (
     "estimate_step_p50_us",
@@ -61,7 +62,7 @@ def quick_run() -> dict:
         ],
         capture_output=True,
         text=True,
-        timeout=240,
+        timeout=480,  # the cold start compiles every kernel group once
         check=False,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -89,6 +90,24 @@ def test_quick_bench_prints_the_figures(quick_run: dict) -> None:
     assert isinstance(result["load_average_start"], list)
     for goal in result["goals"].values():
         assert goal["met"] in (True, False, None)
+
+
+@pytest.mark.zenoh
+def test_quick_bench_measures_the_cold_start(quick_run: dict) -> None:
+    # The first demo compiled every group ahead (an empty cache), the second found them cached;
+    # in both, the first estimate came, and the service estimated the slave's joint states
+    # from the first one on (nothing lost while compiling).
+    assert quick_run.get("cold_start_error") is None
+    assert quick_run["cold_start_warm_up_cached"] is False
+    groups = quick_run["cold_start_compile_s_by_group"]
+    assert set(groups) == {g.name for g in KERNEL_GROUPS}
+    assert all(_number(seconds) and seconds > 0 for seconds in groups.values())
+    assert quick_run["warm_start_warm_up_cached"] is True
+    assert quick_run["warm_start_compile_s_by_group"] is None
+    for run in ("cold_start", "warm_start"):
+        assert _number(quick_run[f"{run}_first_estimate_s"]), run
+        assert quick_run[f"{run}_estimated_fraction"] >= 0.99, run
+        assert set(quick_run[f"{run}_up_after_s"]) == {"recorder", "service", "slave", "master"}
 
 
 def test_bench_rejects_bad_options() -> None:
@@ -124,6 +143,10 @@ def test_only_selects_the_parts() -> None:
     assert both.estimation and both.replay and not both.messaging and both.quick
     everything = options_from_args(parser.parse_args([]))
     assert everything.estimation and everything.replay and everything.messaging
+    assert (
+        everything.cold_start
+        and not options_from_args(parser.parse_args(["--no-cold-start"])).cold_start
+    )
     with pytest.raises(ConfigurationError, match="--only"):
         options_from_args(parser.parse_args(["--only", "identification,bogus"]))
 
