@@ -220,9 +220,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         session.close()
     if args.stats_json:
         write_json(args.stats_json, stats)
-    written = stats["recorder"].get("written")
-    log(ROLE, f"stopped: {written} messages written to {path}")
+    log(ROLE, final_line(stats))
     return 0
+
+
+def final_line(stats: dict[str, Any]) -> str:
+    """Return the last line: what was written, dropped and refused (from :meth:`stats`)."""
+    recorder = stats["recorder"]
+    return (
+        f"stopped: {recorder['messages']} messages written to {recorder['path']} "
+        f"({stats['received']} received, {recorder['dropped']} dropped, "
+        f"{stats['malformed']['dropped']} malformed)"
+    )
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import pytest
 
 from teleop_force.errors import ConfigurationError
 from teleop_force.io.mcap_session import SessionReader, SessionWriter
-from teleop_force.service.session_recorder import SessionRecorder
+from teleop_force.service.session_recorder import SessionRecorder, final_line
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
@@ -54,6 +54,10 @@ def test_every_message_recorded_with_log_time_from_its_stamp(
     assert stats["received"] == _COUNT + 1
     assert stats["recorder"]["messages"] == _COUNT
     assert stats["malformed"]["dropped"] == 1
+    assert final_line(stats) == (
+        f"stopped: {_COUNT} messages written to {path} ({_COUNT + 1} received, 0 dropped, "
+        "1 malformed)"
+    )
     rows = list(SessionReader(path).messages([keys.measured_js("slave")]))
     assert [message.seq for _, _, message in rows] == list(range(_COUNT))
     log_times = [log_ns for _, log_ns, _ in rows]
