@@ -21,8 +21,10 @@ import os
 import platform
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -181,7 +183,7 @@ def warm_up(
 
     ``jobs``: processes at once (default: the CPUs this process may run on). ``progress`` is
     called with one line per group started and finished ("compiling the estimator's step,
-    first run only, 1/5"). A group that fails is reported, not raised: the process that
+    first run only (1/4)"). A group that fails is reported, not raised: the process that
     needs it then compiles it itself.
     """
     started = time.perf_counter()
@@ -189,37 +191,33 @@ def warm_up(
         return WarmUpReport(cached=True, seconds=time.perf_counter() - started)
     say = progress or (lambda line: None)
     jobs = max(1, jobs if jobs is not None else len(os.sched_getaffinity(0)))
-    pending = list(KERNEL_GROUPS)
-    running: list[tuple[KernelGroup, subprocess.Popen[bytes], float]] = []
-    done: list[GroupTiming] = []
-    total = len(pending)
-    while pending or running:
-        while pending and len(running) < jobs:
-            group = pending.pop(0)
-            argv = [sys.executable, "-m", _MODULE, "--group", group.name]
-            if model_path is not None:
-                argv += ["--model", str(model_path)]
-            process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-            running.append((group, process, time.perf_counter()))
-            say(f"compiling {group.label}, first run only ({len(done) + len(running)}/{total})")
-        time.sleep(0.05)
-        for entry in list(running):
-            group, process, t0 = entry
-            if process.poll() is None:
-                continue
-            running.remove(entry)
-            stderr = process.stderr.read().decode(errors="replace") if process.stderr else ""
-            ok = process.returncode == 0
-            error = "" if ok else (stderr.strip().splitlines() or ["no output"])[-1]
-            done.append(GroupTiming(group.name, time.perf_counter() - t0, ok, error))
-            outcome = "compiled" if ok else f"failed ({error}); its process will compile it"
-            say(f"{group.label}: {outcome} in {done[-1].seconds:.1f} s ({len(done)}/{total})")
-    order = {g.name: i for i, g in enumerate(KERNEL_GROUPS)}
-    report = WarmUpReport(
-        cached=False,
-        seconds=time.perf_counter() - started,
-        groups=tuple(sorted(done, key=lambda g: order[g.name])),
-    )
+    total = len(KERNEL_GROUPS)
+    lock = threading.Lock()
+    counts = {"started": 0, "done": 0}
+
+    def run(group: KernelGroup) -> GroupTiming:
+        with lock:
+            counts["started"] += 1
+            say(f"compiling {group.label}, first run only ({counts['started']}/{total})")
+        argv = [sys.executable, "-m", _MODULE, "--group", group.name]
+        if model_path is not None:
+            argv += ["--model", str(model_path)]
+        t0 = time.perf_counter()
+        # run to the end of its output (the pipes close when the process exits), then reaped
+        process = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        seconds = time.perf_counter() - t0
+        ok = process.returncode == 0
+        lines = process.stderr.decode(errors="replace").strip().splitlines()
+        timing = GroupTiming(group.name, seconds, ok, "" if ok else (lines or ["no output"])[-1])
+        with lock:
+            counts["done"] += 1
+            outcome = "compiled" if ok else f"failed ({timing.error}); its process will compile it"
+            say(f"{group.label}: {outcome} in {seconds:.1f} s ({counts['done']}/{total})")
+        return timing
+
+    with ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="warm-up") as pool:
+        timings = tuple(pool.map(run, KERNEL_GROUPS))  # started in order: the largest first
+    report = WarmUpReport(cached=False, seconds=time.perf_counter() - started, groups=timings)
     if report.ok:
         _write_stamp(model_path)
     return report
