@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
@@ -194,3 +195,8 @@ __all__ = [
     "trust_at",
     "unwrap_model",
 ]
+
+
+def compile_kernels(model_path: Path | None = None) -> None:
+    """Compile (or load) the coverage map's kernel (``teleop_force.process.warm_up``)."""
+    _trust_from_counts(np.zeros(4), {})

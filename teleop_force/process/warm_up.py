@@ -83,6 +83,7 @@ KERNEL_GROUPS: Final = (
     KernelGroup(
         "plants", "the master's and slave's plants", "master_slave.slave:compile_plant_kernels"
     ),
+    KernelGroup("dashboard", "the dashboard's coverage map", "web.coverage_data:compile_kernels"),
 )
 
 
@@ -183,7 +184,7 @@ def warm_up(
 
     ``jobs``: processes at once (default: the CPUs this process may run on). ``progress`` is
     called with one line per group started and finished ("compiling the estimator's step,
-    first run only (1/4)"). A group that fails is reported, not raised: the process that
+    first run only (1/5)"). A group that fails is reported, not raised: the process that
     needs it then compiles it itself.
     """
     started = time.perf_counter()
