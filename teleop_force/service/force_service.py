@@ -13,6 +13,11 @@ For one device (``--device``, the slave)::
     publishes   omni/<device>/service/diagnostics  the residual watch (JSON, 1 Hz)
     token       omni/<device>/alive/service
 
+With ``--ros2`` it is also a ROS 2 node on rmw_zenoh's keys (:mod:`.ros2_edge`): it estimates
+on ``sensor_msgs/msg/JointState`` from ``/<device>/measured_js`` as on the wire JointState,
+and publishes every estimate on ``/<device>/estimated_cf`` and
+``/<device>/estimate_diagnostics`` too.
+
 The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
 at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
 receive callback only appends the two payloads to its preallocated ring. The watch makes its
@@ -107,6 +112,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import topics
 from teleop_force.service.adaptation import (
     DEFAULT_FORCE_THRESHOLD_N,
     DEFAULT_GUARD_S,
@@ -131,6 +137,7 @@ from teleop_force.service.counters import (
 from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.service.residual_watch import ResidualWatch
+from teleop_force.service.ros2_edge import Ros2Edge
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import keys
@@ -177,6 +184,8 @@ class ServiceConfig:
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
+        ros2: Also be a ROS 2 node (:mod:`teleop_force.service.ros2_edge`): estimate on
+            rmw_zenoh JointStates and publish every estimate on rmw_zenoh's keys.
 
     """
 
@@ -191,10 +200,13 @@ class ServiceConfig:
     zenoh_floor: bool = False
     residual_watch: bool = True
     adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
+    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
         keys.validate_chunk(self.device)
+        if self.ros2:
+            topics.validate_device(self.device)
         if self.master is not None:
             keys.validate_chunk(self.master, "master device id")
         if self.record_path is not None:
@@ -277,6 +289,7 @@ class ForceService:
         self._closed = False
         self._entities: list[Any] = []
         self._publisher: zenoh.Publisher | None = None
+        self._ros2: Ros2Edge | None = None
         self._queries: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
         self._control_thread: threading.Thread | None = None
         self._logged: set[str] = set()
@@ -323,6 +336,10 @@ class ForceService:
             self._entities.append(
                 declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
             )
+            if self.config.ros2:
+                self._ros2 = Ros2Edge(
+                    session, device, self.n_joints, self._estimate_guarded, self._count_malformed
+                )
             if self.recording.recorder is not None:
                 self._subscribe_recorded(self._on_recorded)
         self._entities.append(
@@ -355,6 +372,10 @@ class ForceService:
         entities, self._entities = self._entities, []
         recorded = self.recording.take_entities()
         undeclare_all(*reversed(entities), *recorded)
+        with self._lock:
+            edge, self._ros2 = self._ros2, None
+        if edge is not None:
+            edge.close()
         if already:
             return
         if self._control_thread is not None:
@@ -390,8 +411,14 @@ class ForceService:
         arrival_ns = time.time_ns()
         if self._closed:
             return
+        self._estimate_guarded(sample.payload.to_bytes(), arrival_ns)
+
+    def _estimate_guarded(self, payload: bytes, arrival_ns: int) -> None:
+        """Estimate on one wire JointState of the device (:meth:`_on_own_js`, the ROS 2 edge)."""
+        if self._closed:
+            return
         try:
-            self._on_joint_state(self._own_js_key, sample.payload.to_bytes(), arrival_ns)
+            self._on_joint_state(self._own_js_key, payload, arrival_ns)
         except Exception as exc:  # nothing may stop the estimation
             # TeleopForceError: e.g. the session went away under us; anything else is a bug,
             # logged once per kind, and the next joint state is estimated on regardless.
@@ -503,6 +530,8 @@ class ForceService:
             [*force, *out[3 : 3 + n], *weight, *out[3 + n : 3 + 3 * n]], mask,
         )  # fmt: skip
         put(self._publisher, payload)
+        if self._ros2 is not None:
+            self._ros2.publish_estimate(payload)
         counters.count_published(seq, force, mask, n, out[3 + 4 * n] != 0.0, t_ns, started_s)
         return payload, published_ns
 
@@ -831,6 +860,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-residual-watch", action="store_true",
         help="do not run the residual watch (omni/<device>/service/diagnostics)",
     )  # fmt: skip
+    parser.add_argument(
+        "--ros2", action="store_true",
+        help="also a ROS 2 node on rmw_zenoh's keys: /<device>/measured_js in, estimates out",
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
         "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
@@ -860,6 +893,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             zenoh_floor=args.zenoh_floor,
             residual_watch=not args.no_residual_watch,
             adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
+            ros2=args.ros2,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:
