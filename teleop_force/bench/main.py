@@ -1,6 +1,6 @@
 """``teleop-force bench``: performance figures of this machine, measured in one run.
 
-Six figures, each measured in the same run as its reference so that it holds as a ratio on
+Seven figures, each measured in the same run as its reference so that it holds as a ratio on
 a noisy machine (see BENCHMARKS.md for a full run and what was optimised):
 
 1. the 1 kHz estimation step (:mod:`teleop_force.bench.estimation`) in µs and as a multiple
@@ -15,7 +15,9 @@ a noisy machine (see BENCHMARKS.md for a full run and what was optimised):
 5. the service's peak memory, and how the figures grow with the number of wavelets per
    joint network and with the recording's length;
 6. ``estimate`` and the re-estimation of a recording on a 10-minute session, from the CLI,
-   process start included (:mod:`teleop_force.bench.batch`).
+   process start included (:mod:`teleop_force.bench.batch`);
+7. CDR encode and decode per ROS 2 message type, against the wire format's
+   (:mod:`teleop_force.bench.cdr`).
 
 Inputs are generated (:mod:`teleop_force.bench.data`). :func:`run_bench` returns one dict
 whose keys name the figure and its unit; ``teleop-force bench --json`` prints it as one JSON
@@ -92,6 +94,8 @@ class BenchOptions:
         isolated_replays: One worker process per replay (clean memory figures).
         batch: Time ``estimate`` and the re-estimation of a recording from the CLI.
         batch_session_s: Length of the session of the batch figures.
+        cdr: Time CDR encode and decode per ROS 2 message type.
+        cdr_samples: Timed calls per message type and direction.
         work_dir: Where models and sessions are written (default: a temporary folder).
         seed: Seed of every simulation.
 
@@ -112,6 +116,8 @@ class BenchOptions:
     isolated_replays: bool = True
     batch: bool = True
     batch_session_s: float = 600.0
+    cdr: bool = True
+    cdr_samples: int = 20_000
     work_dir: Path | None = None
     seed: int = 0
 
@@ -128,6 +134,7 @@ class BenchOptions:
             "replay_wavelets_length_s": 0.5,
             "isolated_replays": False,
             "batch_session_s": 5.0,
+            "cdr_samples": 1_000,
         }
         values.update(changes)
         return cls(**values)
@@ -236,6 +243,10 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
             result.update(_guarded_part(
                 "batch", options.batch, _BATCH_KEYS,
                 lambda: _batch_figures(options, bench_model.path, work_dir, log), log,
+            ))  # fmt: skip
+            # 7. CDR encode / decode per ROS 2 message type
+            result.update(_guarded_part(
+                "cdr", options.cdr, _CDR_KEYS, lambda: _cdr_figures(options, log), log
             ))  # fmt: skip
         result["bench_wall_s"] = round(total.wall_s, 2)
         result["bench_cpu_s"] = round(total.cpu_s, 2)
@@ -507,6 +518,13 @@ def _batch_figures(
     return batch_figures(model_path, work_dir, log, duration_s=options.batch_session_s)
 
 
+def _cdr_figures(options: BenchOptions, log: Callable[[str], None]) -> dict[str, Any]:
+    from teleop_force.bench.cdr import cdr_figures
+
+    log(f"cdr: encode and decode per ROS 2 message type, {options.cdr_samples} calls each")
+    return cdr_figures(options.cdr_samples)
+
+
 def _messaging_figures(
     options: BenchOptions, model_path: Path, log: Callable[[str], None]
 ) -> dict[str, Any]:
@@ -539,7 +557,13 @@ _ESTIMATION_KEYS = (
 )  # fmt: skip
 #: Parts of ``teleop-force bench`` that ``--only`` selects (identification always runs: its
 #: model is the benchmark model of the others).
-PARTS = ("identification", "estimation", "replay", "messaging", "batch")
+PARTS = ("identification", "estimation", "replay", "messaging", "batch", "cdr")
+
+_CDR_KEYS = (
+    "cdr_encode_p50_us_by_type", "cdr_encode_p99_us_by_type", "cdr_decode_p50_us_by_type",
+    "cdr_decode_p99_us_by_type", "wire_encode_p50_us_by_type", "wire_decode_p50_us_by_type",
+    "cdr_samples",
+)  # fmt: skip
 
 _REPLAY_KEYS = (
     "replay_x_realtime", "replay_peak_rss_mb", "replay_x_realtime_by_length_s",
@@ -633,6 +657,7 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
         "messaging": not args.no_messaging and "messaging" in parts,
         "replay": not args.no_replay and "replay" in parts,
         "batch": "batch" in parts,
+        "cdr": "cdr" in parts,
         "messaging_model": args.messaging_model,
     }
     if args.messaging_duration is not None:
