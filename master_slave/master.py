@@ -47,6 +47,7 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.ros2_outputs import Ros2Outputs
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -56,6 +57,7 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
+from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -199,6 +201,7 @@ class MasterProcess:
         self.loop = RateLoop(config.loop)
         self.feedback = FeedbackInbox()
         self.published = 0
+        self._ros2: Ros2Outputs | None = None
         self.waited_for_subscriber_s = 0.0
         #: Time spent publishing a setpoint (congestion control BLOCK waits here).
         self.put_time = LatencyHistogram()
@@ -226,6 +229,10 @@ class MasterProcess:
             sp_pub = declare_data_publisher(session, keys.setpoint_js(config.device))
             js_pub = declare_data_publisher(session, keys.measured_js(config.device))
             entities += [sp_pub, js_pub]
+            if config.run.ros2:
+                self._ros2 = Ros2Outputs(
+                    session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
+                )
             if config.haptic_feedback:
                 entities.append(
                     declare_subscriber(
@@ -268,6 +275,9 @@ class MasterProcess:
             )
             self._control_loop(sp_pub, js_pub)
         finally:
+            ros2, self._ros2 = self._ros2, None
+            if ros2 is not None:
+                ros2.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
@@ -277,6 +287,7 @@ class MasterProcess:
         config = self.config
         plant, hand, loop, operator = self.plant, self.hand, self.loop, self.operator
         put_time, stop, feedback = self.put_time, self.stop, self.feedback
+        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -299,6 +310,8 @@ class MasterProcess:
             put_started_s = perf_counter()
             put(sp_pub, setpoint)
             put_time.add(perf_counter() - put_started_s)
+            if ros2 is not None:
+                ros2.setpoint(m.JointSetpoint(seq, stamp_ns, q_floats))
             q_hand, qd_hand = operator.reference(k)
             tau_hand = hand.update(q_hand, q, qd_hand)
             motor: Sequence[float] = no_torque
@@ -309,10 +322,12 @@ class MasterProcess:
                     tau_hand = tau_hand + tau_motor
                     motor = tau_motor.tolist()
             plant.command_torque(tau_hand)
-            put(
-                js_pub,
-                m.pack_joint_state(seq, stamp_ns, q_floats, hand.velocity_rad_s.tolist(), motor),
-            )
+            qd_floats = hand.velocity_rad_s.tolist()
+            put(js_pub, m.pack_joint_state(seq, stamp_ns, q_floats, qd_floats, motor))
+            if ros2 is not None:
+                ros2.joint_state(
+                    m.JointState(seq, stamp_ns, tuple(q_floats), tuple(qd_floats), tuple(motor))
+                )
             self.published += 1
             plant.step()
 

@@ -54,6 +54,7 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.ros2_outputs import Ros2Outputs
 from master_slave.safety import SafetyConfig, SafetyMonitor
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
@@ -63,6 +64,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.simulation import (
     EFFECT_NAMES,
     PID,
@@ -334,6 +336,7 @@ class SlaveProcess:
         self._status_seq = 0
         self._last_status_s = -math.inf
         self._status_pub: zenoh.Publisher | None = None
+        self._ros2: Ros2Outputs | None = None
         #: The plant effect switched on mid-session, once it is (``effect``, ``at_s``).
         self.switched_effect: dict[str, Any] | None = None
 
@@ -371,6 +374,11 @@ class SlaveProcess:
             cf_pub = declare_data_publisher(session, keys.measured_cf(config.device))
             self._status_pub = declare_data_publisher(session, keys.status(config.device))
             entities += [js_pub, cf_pub, self._status_pub]
+            if config.run.ros2:
+                self._ros2 = Ros2Outputs(
+                    session, ROLE, config.device,
+                    (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
+                )  # fmt: skip
             entities.append(
                 declare_subscriber(
                     session,
@@ -410,6 +418,9 @@ class SlaveProcess:
             self.safety.stop("slave stopped")
             self._publish_status(time.perf_counter(), force=True)
         finally:
+            ros2, self._ros2 = self._ros2, None
+            if ros2 is not None:
+                ros2.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
@@ -419,6 +430,7 @@ class SlaveProcess:
         config = self.config
         plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
         presence, put_time, stop = self.presence, self.put_time, self.stop
+        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -466,17 +478,17 @@ class SlaveProcess:
                     self._switch_effect(history, k * config.loop.period_s)
                     switch_tick = None
             seq = k & SEQ_MASK
-            joint_state = m.pack_joint_state(
-                seq, stamp_ns, q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
-            )
+            q_l, qd_l, tau_l = q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
+            joint_state = m.pack_joint_state(seq, stamp_ns, q_l, qd_l, tau_l)
             put_started_s = perf_counter()
             put(js_pub, joint_state)
             put_time.add(perf_counter() - put_started_s)
             force = state.f_tip_in_base_n
-            put(
-                cf_pub,
-                m.pack_contact_force(seq, stamp_ns, no_force if force is None else force.tolist()),
-            )
+            f_n = no_force if force is None else force.tolist()
+            put(cf_pub, m.pack_contact_force(seq, stamp_ns, f_n))
+            if ros2 is not None:
+                ros2.joint_state(m.JointState(seq, stamp_ns, tuple(q_l), tuple(qd_l), tuple(tau_l)))
+                ros2.true_force(m.ContactForce(seq, stamp_ns, f_n))
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)
@@ -514,6 +526,8 @@ class SlaveProcess:
             return
         status = m.Status(self._status_seq, time.time_ns(), self.safety.state, self.safety.reason)
         put(self._status_pub, status.encode())
+        if self._ros2 is not None:
+            self._ros2.status(status)
         self._status_seq += 1
         self._last_status_s = now_s
 
