@@ -57,7 +57,9 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
+from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -142,6 +144,21 @@ class FeedbackInbox:
             with self._lock:
                 self.malformed += 1
             return
+        self._keep(seq, t_ns, f_n, arrival_ns)
+
+    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback (``--ros2``): a WrenchStamped; seq and latency from the attachment."""
+        arrival_ns = time.time_ns()
+        try:
+            f_n = codec.decode_wrench(payload).force_n
+        except MessageError:
+            with self._lock:
+                self.malformed += 1
+            return
+        seq = attachment.sequence_number & SEQ_MASK
+        self._keep(seq, attachment.source_timestamp_ns, f_n, arrival_ns)
+
+    def _keep(self, seq: int, t_ns: int, f_n: Sequence[float], arrival_ns: int) -> None:
         force = np.array(f_n)
         with self._lock:
             self.seqs.observe(seq)
@@ -233,7 +250,14 @@ class MasterProcess:
                 self._ros2 = Ros2Outputs(
                     session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
                 )
-            if config.haptic_feedback:
+            if config.haptic_feedback and self._ros2 is not None:
+                self._ros2.node.subscription(
+                    ros2_topics.topic_name(config.slave, ros2_topics.ESTIMATED_CF),
+                    ros2_topics.ESTIMATED_CF.ros_type,
+                    self.feedback.on_ros2_sample,
+                    direct=True,
+                )
+            elif config.haptic_feedback:
                 entities.append(
                     declare_subscriber(
                         session,

@@ -7,7 +7,9 @@ process publishes on its ``omni/<device>/...`` keys as standard messages on rmw_
 (``sensor_msgs/msg/JointState``), ``/<device>/true_cf`` (``geometry_msgs/msg/WrenchStamped``,
 the simulated true tip force; zero out of contact) and ``/<device>/status``; the master its
 ``/<device>/measured_js`` and ``/<device>/setpoint_js``. Joint names are the model's
-(``model_q1 model_q2 model_q3_absolute``): the plants run in the model's coordinates.
+(``model_q1 model_q2 model_q3_absolute``): the plants run in the model's coordinates. With
+haptic feedback the master's node also subscribes to the slave's ``/<device>/estimated_cf``
+(:meth:`master_slave.master.FeedbackInbox.on_ros2_sample`).
 """
 
 from __future__ import annotations
