@@ -60,6 +60,7 @@ from teleop_force.robots import omni
 from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.topics import SETPOINT_JS
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -285,7 +286,7 @@ class MasterProcess:
                 )
                 started = time.perf_counter()
                 matched = wait_for_subscribers(
-                    sp_pub,
+                    sp_pub if self._ros2 is None else self._ros2.zenoh_publisher(SETPOINT_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=slave_seen.is_set,

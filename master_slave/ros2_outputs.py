@@ -37,12 +37,17 @@ class Ros2Outputs:
         kinds: Sequence[topics.Topic],
     ) -> None:
         """Declare node ``teleop_force_<role>`` and a publisher per topic kind of ``device``."""
+        codec.warm_up()  # rosbags compiles on first use: not on the loop's first tick
         self.node = Node(session, f"teleop_force_{role}")
         self.names = topics.model_joint_names(JOINTS)
         self._publishers: dict[str, Publisher] = {
             topic.kind: self.node.publisher(topics.topic_name(device, topic), topic.ros_type)
             for topic in kinds
         }
+
+    def zenoh_publisher(self, topic: topics.Topic) -> zenoh.Publisher:
+        """Return the Zenoh publisher of ``topic`` (to wait for its subscribers)."""
+        return self._publishers[topic.kind].zenoh_publisher
 
     def joint_state(self, msg: m.JointState) -> None:
         """Publish a measured joint state (position, velocity, commanded motor torque)."""

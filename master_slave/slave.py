@@ -64,7 +64,10 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.topics import MEASURED_JS
 from teleop_force.simulation import (
     EFFECT_NAMES,
     PID,
@@ -257,10 +260,37 @@ class SetpointInbox:
         try:
             seq, t_ns, q = m.unpack_joint_setpoint(sample.payload.to_bytes(), JOINTS)
         except MessageError as exc:
-            with self._lock:
-                self.malformed += 1
-                self.last_malformed = str(exc)
+            self._count_malformed(exc)
             return
+        self._keep(seq, t_ns, q, arrival_ns, arrival_s)
+
+    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback (``--ros2``): a JointState setpoint in the model's coordinates.
+
+        Its loss is counted from the attachment's sequence number, its latency from the
+        attachment's source time.
+        """
+        arrival_ns = time.time_ns()
+        arrival_s = time.perf_counter()
+        try:
+            msg, named = codec.decode_joint_setpoint(payload, attachment.sequence_number & SEQ_MASK)
+            names = ros2_topics.model_joint_names(JOINTS)
+            if msg.n_joints != JOINTS or named.names not in ((), names):
+                got = list(named.names) or msg.n_joints
+                raise MessageError(f"setpoint of joints {got}, expected {list(names)}")
+        except MessageError as exc:
+            self._count_malformed(exc)
+            return
+        self._keep(msg.seq, attachment.source_timestamp_ns, msg.q_rad, arrival_ns, arrival_s)
+
+    def _count_malformed(self, exc: MessageError) -> None:
+        with self._lock:
+            self.malformed += 1
+            self.last_malformed = str(exc)
+
+    def _keep(
+        self, seq: int, t_ns: int, q: tuple[float, ...], arrival_ns: int, arrival_s: float
+    ) -> None:
         with self._lock:
             self.seqs.observe(seq)
             self.latency.add((arrival_ns - t_ns) * 1e-9)
@@ -379,14 +409,22 @@ class SlaveProcess:
                     session, ROLE, config.device,
                     (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
                 )  # fmt: skip
-            entities.append(
-                declare_subscriber(
-                    session,
-                    keys.setpoint_js(config.master),
-                    # run on Zenoh's receive thread: no hand-over to a Python thread per sample
-                    zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
+            if self._ros2 is not None:  # the setpoints as ROS JointStates only
+                self._ros2.node.subscription(
+                    ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),
+                    ros2_topics.SETPOINT_JS.ros_type,
+                    self.inbox.on_ros2_sample,
+                    direct=True,
                 )
-            )
+            else:
+                entities.append(
+                    declare_subscriber(
+                        session,
+                        keys.setpoint_js(config.master),
+                        # on Zenoh's receive thread: no hand-over to a Python thread per sample
+                        zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
+                    )
+                )
             entities.append(
                 declare_liveliness_subscriber(
                     session, keys.alive(config.master, "master"), self.presence.on_sample
@@ -400,7 +438,7 @@ class SlaveProcess:
                 # The master too (its token): a peer joining while the loop runs holds up
                 # the loop's puts for tens of milliseconds (Zenoh updates its routes).
                 matched = wait_for_subscribers(
-                    js_pub,
+                    js_pub if self._ros2 is None else self._ros2.zenoh_publisher(MEASURED_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=lambda: self.presence.alive,

@@ -348,3 +348,23 @@ def decode_service_diagnostics(
         finding=finding,
         command=d.command,
     )
+
+
+def warm_up() -> None:
+    """Encode and decode one message of every type, so that none is compiled on a 1 kHz path.
+
+    ``rosbags`` compiles a type's (de)serializer on its first use (hundreds of ms).
+    """
+    t_ns = 1
+    names = ("q1",)
+    js = m.JointState(0, t_ns, (0.0,), (0.0,), (0.0,))
+    decode_joint_state(encode_joint_state(js, names), 0)
+    decode_joint_setpoint(encode_joint_setpoint(m.JointSetpoint(0, t_ns, (0.0,)), names), 0)
+    decode_contact_force(encode_contact_force(m.ContactForce(0, t_ns, (0.0, 0.0, 0.0)), ""), 0)
+    estimate = m.ForceEstimateMessage(0, t_ns, 0, (0.0, 0.0, 0.0), (0.0,), (True,), (1.0,),
+                                      (0.0,), (0.0,))  # fmt: skip
+    wrench, diagnostics = encode_estimate(estimate, names, "")
+    estimate_message(0, decode_wrench(wrench), decode_estimate_diagnostics(diagnostics))
+    decode_status(encode_status(m.Status(0, t_ns, m.SafetyState.STARTING, "")), 0)
+    report = m.ServiceDiagnostics(0, t_ns, "d", "baseline", 0.0, False, (), (), None, "")
+    decode_service_diagnostics(encode_service_diagnostics(report), 0)

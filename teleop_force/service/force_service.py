@@ -14,9 +14,9 @@ For one device (``--device``, the slave)::
     token       omni/<device>/alive/service
 
 With ``--ros2`` it is also a ROS 2 node on rmw_zenoh's keys (:mod:`.ros2_edge`): it estimates
-on ``sensor_msgs/msg/JointState`` from ``/<device>/measured_js`` as on the wire JointState,
-and publishes every estimate on ``/<device>/estimated_cf`` and
-``/<device>/estimate_diagnostics`` too.
+on ``sensor_msgs/msg/JointState`` from ``/<device>/measured_js`` instead of the wire
+JointState (one source: a sample published both ways is estimated on once), and publishes
+every estimate on ``/<device>/estimated_cf`` and ``/<device>/estimate_diagnostics`` too.
 
 The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
 at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
@@ -184,8 +184,9 @@ class ServiceConfig:
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
-        ros2: Also be a ROS 2 node (:mod:`teleop_force.service.ros2_edge`): estimate on
-            rmw_zenoh JointStates and publish every estimate on rmw_zenoh's keys.
+        ros2: Be a ROS 2 node too (:mod:`teleop_force.service.ros2_edge`): estimate on
+            rmw_zenoh's JointStates (instead of the wire ones) and publish every estimate on
+            rmw_zenoh's keys as well.
 
     """
 
@@ -333,12 +334,13 @@ class ForceService:
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
         else:
-            self._entities.append(
-                declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
-            )
-            if self.config.ros2:
+            if self.config.ros2:  # the ROS JointState only: a sample published both ways once
                 self._ros2 = Ros2Edge(
                     session, device, self.n_joints, self._estimate_guarded, self._count_malformed
+                )
+            else:
+                self._entities.append(
+                    declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
                 )
             if self.recording.recorder is not None:
                 self._subscribe_recorded(self._on_recorded)

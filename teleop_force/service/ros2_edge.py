@@ -53,6 +53,7 @@ class Ros2Edge:
         self.names = topics.model_joint_names(n_joints)
         self._on_joint_state = on_joint_state
         self._count_malformed = count_malformed
+        codec.warm_up()  # before the node and its subscription exist
         self.node = Node(session, NODE_NAME)
         self.estimates = self.node.publisher(
             topics.topic_name(device, topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type

@@ -33,3 +33,26 @@ def test_a_malformed_ros2_estimate_is_counted_and_dropped():
     singular = codec.encode_wrench(time.time_ns(), (math.nan,) * 3, BASE_FRAME)
     inbox.on_ros2_sample(singular, Attachment(2, time.time_ns(), GID))
     assert np.isnan(inbox.latest()[0]).all()  # kept: the feedback torque is zero for it
+
+
+def test_the_slave_takes_ros2_setpoints_in_model_coordinates_only():
+    from master_slave.slave import SetpointInbox
+    from teleop_force.ros2.topics import DRIVER_JOINT_NAMES, OMNI_MODEL_JOINT_NAMES
+    from teleop_force.transport import messages as m
+
+    inbox = SetpointInbox()
+    now = time.time_ns()
+    setpoint = m.JointSetpoint(0, now, (0.1, 0.2, 0.3))
+    for seq in (1, 2, 5):  # 3 and 4 lost
+        payload = codec.encode_joint_setpoint(setpoint, OMNI_MODEL_JOINT_NAMES)
+        inbox.on_ros2_sample(payload, Attachment(seq, now, GID))
+    inbox.on_ros2_sample(codec.encode_joint_setpoint(setpoint, DRIVER_JOINT_NAMES),
+                         Attachment(6, now, GID))  # fmt: skip
+    two = m.JointSetpoint(0, now, (0.1, 0.2))
+    inbox.on_ros2_sample(codec.encode_joint_setpoint(two, ("model_q1", "model_q2")),
+                         Attachment(7, now, GID))  # fmt: skip
+    q, arrival_s, count = inbox.latest()
+    assert q == (0.1, 0.2, 0.3) and arrival_s is not None and count == 3
+    stats = inbox.stats()
+    assert (stats["received"], stats["lost"], stats["malformed"]) == (3, 2, 2)
+    assert "waist" in stats["last_malformed"] or "model_q1" in stats["last_malformed"]
