@@ -318,11 +318,17 @@ class ForceService:
         device = self.config.device
         session = self.session
         self._publisher = declare_data_publisher(session, self._estimate_key)
+        if self.config.ros2 and not self.config.zenoh_floor:
+            self._ros2 = Ros2Edge(
+                session, device, self.n_joints, self._estimate_guarded, self._count_malformed
+            )
         watch = self.residual_watch
         if watch is not None:
             diagnostics = session.declare_publisher(keys.service_diagnostics(device))
             self._entities.append(diagnostics)
-            watch.start(diagnostics.put)
+            watch.start(
+                diagnostics.put if self._ros2 is None else self._diagnostics_both(diagnostics)
+            )
         self._control_thread = threading.Thread(
             target=self._serve_controls, name="controls", daemon=True
         )
@@ -334,10 +340,8 @@ class ForceService:
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
         else:
-            if self.config.ros2:  # the ROS JointState only: a sample published both ways once
-                self._ros2 = Ros2Edge(
-                    session, device, self.n_joints, self._estimate_guarded, self._count_malformed
-                )
+            if self._ros2 is not None:  # the ROS JointState only: one sample published twice
+                self._ros2.subscribe()  # is estimated on once
             else:
                 self._entities.append(
                     declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
@@ -358,6 +362,17 @@ class ForceService:
         self._entities.append(declare_token(session, keys.alive(device, ROLE)))
         self._started_s = time.perf_counter()
         return self
+
+    def _diagnostics_both(self, publisher: zenoh.Publisher) -> Any:
+        """Return the watch's publish callback with ``--ros2``: the JSON, then the ROS report."""
+        edge = self._ros2
+
+        def publish(payload: bytes) -> None:
+            publisher.put(payload)
+            if edge is not None:
+                edge.publish_service_diagnostics(payload)
+
+        return publish
 
     def close(self) -> None:
         """Stop processing, undeclare everything, then close the recording (idempotent).

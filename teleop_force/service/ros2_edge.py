@@ -4,7 +4,9 @@ A ROS 2 node ``teleop_force_service`` on the service's session, as rmw_zenoh dec
 (:mod:`teleop_force.ros2.node`): it subscribes to ``/<device>/measured_js``
 (``sensor_msgs/msg/JointState``, any type hash) and publishes every estimate as
 ``geometry_msgs/msg/WrenchStamped`` on ``/<device>/estimated_cf`` and
-``teleop_force_msgs/msg/EstimateDiagnostics`` on ``/<device>/estimate_diagnostics``.
+``teleop_force_msgs/msg/EstimateDiagnostics`` on ``/<device>/estimate_diagnostics``, and
+each report of the residual watch as ``teleop_force_msgs/msg/ServiceDiagnostics`` on
+``/<device>/service/diagnostics``.
 
 A received JointState must be in the model's coordinates: its names are empty or the
 model's (:func:`teleop_force.ros2.topics.model_joint_names`); the Omni driver's ``waist,
@@ -25,7 +27,7 @@ import zenoh
 from teleop_force.errors import MessageError
 from teleop_force.ros2 import codec, topics
 from teleop_force.ros2.attachment import Attachment
-from teleop_force.ros2.node import Node
+from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport import messages as m
 
 #: The node's name (namespace ``/``).
@@ -44,7 +46,7 @@ class Ros2Edge:
         on_joint_state: Callable[[bytes, int], None],
         count_malformed: Callable[[str, Exception], None],
     ) -> None:
-        """Declare the node, its subscription and its two publishers.
+        """Declare the node and its publishers; :meth:`subscribe` starts the input.
 
         ``on_joint_state(wire_payload, arrival_ns)`` gets every accepted JointState as the
         wire message; ``count_malformed(key, error)`` every refused one.
@@ -62,8 +64,16 @@ class Ros2Edge:
             topics.topic_name(device, topics.ESTIMATE_DIAGNOSTICS),
             topics.ESTIMATE_DIAGNOSTICS.ros_type,
         )
+        self.service_diagnostics = self.node.publisher(
+            topics.topic_name(device, topics.SERVICE_DIAGNOSTICS),
+            topics.SERVICE_DIAGNOSTICS.ros_type,
+        )
+        self.joint_states: Subscription | None = None
+
+    def subscribe(self) -> None:
+        """Declare the subscription to ``/<device>/measured_js``: estimation starts."""
         self.joint_states = self.node.subscription(
-            topics.topic_name(device, topics.MEASURED_JS),
+            topics.topic_name(self.device, topics.MEASURED_JS),
             topics.MEASURED_JS.ros_type,
             self._on_sample,
             direct=True,
@@ -72,7 +82,12 @@ class Ros2Edge:
     @property
     def malformed_attachments(self) -> int:
         """Samples dropped for a missing or malformed rmw_zenoh attachment."""
-        return self.joint_states.malformed
+        return 0 if self.joint_states is None else self.joint_states.malformed
+
+    def publish_service_diagnostics(self, json_payload: bytes) -> None:
+        """Publish one residual-watch report (its JSON payload) as ServiceDiagnostics."""
+        report = m.ServiceDiagnostics.decode(json_payload)
+        self.service_diagnostics.publish(codec.encode_service_diagnostics(report))
 
     def _on_sample(self, payload: bytes, attachment: Attachment) -> None:
         arrival_ns = time.time_ns()
@@ -88,7 +103,7 @@ class Ros2Edge:
                     )
                 )
         except MessageError as exc:
-            self._count_malformed(self.joint_states.key, exc)
+            self._count_malformed(topics.topic_name(self.device, topics.MEASURED_JS), exc)
             return
         self._on_joint_state(msg.encode(), arrival_ns)
 

@@ -28,6 +28,8 @@ geometry_msgs = pytest.importorskip("geometry_msgs.msg")
 
 pytestmark = pytest.mark.zenoh
 KEPT = 400  # samples kept per key
+#: The 1 kHz topics (status is 10 Hz, the service's diagnostics 1 Hz)
+ONE_KHZ = {"measured_js", "setpoint_js", "true_cf", "estimated_cf", "estimate_diagnostics"}
 
 
 def _client(port: int):
@@ -71,7 +73,7 @@ def test_demo_ros2_messages_decode_with_rclpy_to_the_wire_values(tmp_path):
                 session.declare_subscriber("omni/*/*", keep_wire)]  # fmt: skip
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while time.monotonic() < deadline and (
-            len(ros) < 7 or any(len(v) < KEPT for k, v in ros.items() if "status" not in k)
+            len(ros) < 7 or any(len(v) < KEPT for k, v in ros.items() if k.split("/")[2] in ONE_KHZ)
         ):
             time.sleep(0.2)
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=3)
@@ -90,13 +92,14 @@ def test_demo_ros2_messages_decode_with_rclpy_to_the_wire_values(tmp_path):
     expected = {
         "/slave/measured_js", "/slave/true_cf", "/slave/status", "/slave/estimated_cf",
         "/slave/estimate_diagnostics", "/master/measured_js", "/master/setpoint_js",
+        "/slave/service/diagnostics",
     }  # fmt: skip
     assert set(publishers) == expected
     for name, entity in publishers.items():
         key = graph.topic_key(0, name, entity.topic.ros_type, entity.topic.type_hash)
         assert entity.topic.type_hash == interfaces.type_hash(entity.topic.ros_type)
         samples = ros[key]
-        assert samples, key
+        assert samples or name == "/slave/service/diagnostics", key  # 1 Hz, after a warm-up
         seqs = [a.sequence_number for _, a in samples]
         assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), key
         assert all(a.gid == entity.gid for _, a in samples), key
@@ -139,3 +142,5 @@ def test_demo_ros2_messages_decode_with_rclpy_to_the_wire_values(tmp_path):
     statuses = [codec.decode_status(p, a.sequence_number) for p, a in
                 ros[ros_key("slave", topics.STATUS)]]  # fmt: skip
     assert statuses and all(isinstance(s.state, m.SafetyState) for s in statuses)
+    for payload, a in ros[ros_key("slave", topics.SERVICE_DIAGNOSTICS)]:
+        assert codec.decode_service_diagnostics(payload, a.sequence_number).device == "slave"

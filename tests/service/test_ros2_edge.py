@@ -99,3 +99,27 @@ def test_a_device_id_that_is_no_ros_name_is_refused_with_ros2():
     with pytest.raises(ConfigurationError, match="ROS 2 name"):
         ServiceConfig(device="svc-test", ros2=True)
     assert ServiceConfig(device="svc-test").device == "svc-test"  # without --ros2 it may
+
+
+def test_residual_watch_reports_are_published_as_service_diagnostics(zenoh_pair):
+    from teleop_force.service.ros2_edge import Ros2Edge
+    from teleop_force.transport import messages as m
+
+    edge = Ros2Edge(zenoh_pair.listener, DEVICE, 3, lambda p, t: None, lambda k, e: None)
+    client = Node(zenoh_pair.connector, "ros2_test_client", domain_id=graph.domain_id_from_env())
+    got: queue.Queue = queue.Queue()
+    try:
+        client.subscription(topics.topic_name(DEVICE, topics.SERVICE_DIAGNOSTICS),
+                            interfaces.SERVICE_DIAGNOSTICS, lambda p, a: got.put(p))  # fmt: skip
+        assert pubsub.wait_for_subscribers(edge.service_diagnostics.zenoh_publisher, TIMEOUT_S)
+        report = m.ServiceDiagnostics(
+            seq=3, t_ns=T0_NS, device=DEVICE, state="watching", stream_s=61.0,
+            baseline_complete=True, rms_torque_nm=(0.02, 0.03, 0.02),
+            checks=(m.DiagnosticCheck(2, 128, "t", 0.2, 0.01, 0),), finding=None, command="",
+        )  # fmt: skip
+        edge.publish_service_diagnostics(report.encode())
+        back = codec.decode_service_diagnostics(got.get(timeout=TIMEOUT_S), seq=3)
+        assert back.to_json_dict() == report.to_json_dict()
+    finally:
+        client.close()
+        edge.close()
