@@ -632,6 +632,7 @@ class DemoSupervisor:
         args = [
             "--record", str(self.recording), "--device", config.slave, "--master", config.master,
             "--model", str(config.model or DEFAULT_MODEL_PATH),
+            *(["--ros2"] if config.ros2 else []),
         ]  # fmt: skip
         argv = _python_module("teleop_force.service.session_recorder", *args, *self._connect_args())
         child = Child("recorder", argv, log, nice=config.realtime_nice)

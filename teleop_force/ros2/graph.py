@@ -119,6 +119,18 @@ def topic_key(domain_id: int, topic: str, ros_type: str, type_hash: str) -> str:
     return f"{domain_id}/{_strip_slashes(topic)}/{dds_type_name(ros_type)}/{type_hash}"
 
 
+def parse_topic_key(key: str) -> tuple[str, str]:
+    """Return a data key's ``(topic, ros_type)``; raise MessageError if it is not one.
+
+    ``0/slave/estimated_cf/geometry_msgs::msg::dds_::WrenchStamped_/RIHS01_...`` gives
+    ``("/slave/estimated_cf", "geometry_msgs/msg/WrenchStamped")``.
+    """
+    chunks = key.split("/")
+    if len(chunks) < 4 or not _DIGITS.match(chunks[0]) or "" in chunks:
+        raise MessageError("not a <domain>/<topic>/<type>/<hash> key", key=key)
+    return "/" + "/".join(chunks[1:-2]), ros_type_name(chunks[-2])
+
+
 def topic_key_any_hash(domain_id: int, topic: str, ros_type: str) -> str:
     """Return the data key of ``topic`` with ``*`` as its hash: hears Humble and later."""
     return topic_key(domain_id, topic, ros_type, "*")

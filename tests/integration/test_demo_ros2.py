@@ -13,6 +13,7 @@ import subprocess
 import time
 
 import pytest
+from mcap.reader import make_reader
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module
 
 from teleop_force.errors import TransportError
@@ -144,3 +145,22 @@ def test_demo_ros2_messages_decode_with_rclpy_to_the_wire_values(tmp_path):
     assert statuses and all(isinstance(s.state, m.SafetyState) for s in statuses)
     for payload, a in ros[ros_key("slave", topics.SERVICE_DIAGNOSTICS)]:
         assert codec.decode_service_diagnostics(payload, a.sequence_number).device == "slave"
+
+    # The recording: the ROS messages as they arrived, seq and source time from the attachment
+    (recording,) = tmp_path.glob("demo-*.mcap")
+    with open(recording, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        recorded = collections.defaultdict(dict)
+        for schema, channel, message in reader.iter_messages():
+            if channel.topic.startswith("/"):
+                assert schema.name == publishers[channel.topic].topic.ros_type
+                recorded[channel.topic][message.sequence] = message
+    assert set(recorded) >= expected - {"/slave/service/diagnostics"}
+    for name, entity in publishers.items():
+        key = graph.topic_key(0, name, entity.topic.ros_type, entity.topic.type_hash)
+        for payload, attachment in ros[key]:
+            message = recorded[name].get(attachment.sequence_number)
+            assert message is not None, (name, attachment.sequence_number)
+            assert message.data == payload
+            assert message.publish_time == attachment.source_timestamp_ns
