@@ -29,7 +29,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -47,7 +47,6 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
-from master_slave.ros2_outputs import Ros2Outputs
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -57,9 +56,7 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
-from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
-from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.topics import SETPOINT_JS
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
@@ -76,6 +73,10 @@ from teleop_force.transport.pubsub import (
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
+
+if TYPE_CHECKING:
+    from master_slave.ros2_outputs import Ros2Outputs
+    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "master"
 #: Joints of the Omni: an estimate for another count is malformed.
@@ -149,6 +150,8 @@ class FeedbackInbox:
 
     def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
         """rmw_zenoh callback (``--ros2``): a WrenchStamped; seq and latency from the attachment."""
+        from teleop_force.ros2 import codec
+
         arrival_ns = time.time_ns()
         try:
             f_n = codec.decode_wrench(payload).force_n
@@ -248,6 +251,8 @@ class MasterProcess:
             js_pub = declare_data_publisher(session, keys.measured_js(config.device))
             entities += [sp_pub, js_pub]
             if config.run.ros2:
+                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
+
                 self._ros2 = Ros2Outputs(
                     session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
                 )

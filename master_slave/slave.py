@@ -40,7 +40,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -54,7 +54,6 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
-from master_slave.ros2_outputs import Ros2Outputs
 from master_slave.safety import SafetyConfig, SafetyMonitor
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
@@ -64,9 +63,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
-from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.topics import MEASURED_JS
 from teleop_force.simulation import (
     EFFECT_NAMES,
@@ -92,6 +89,10 @@ from teleop_force.transport.pubsub import (
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
+
+if TYPE_CHECKING:
+    from master_slave.ros2_outputs import Ros2Outputs
+    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "slave"
 #: Joints of the Omni: a setpoint for another count is malformed.
@@ -270,6 +271,8 @@ class SetpointInbox:
         Its loss is counted from the attachment's sequence number, its latency from the
         attachment's source time.
         """
+        from teleop_force.ros2 import codec
+
         arrival_ns = time.time_ns()
         arrival_s = time.perf_counter()
         try:
@@ -405,6 +408,8 @@ class SlaveProcess:
             self._status_pub = declare_data_publisher(session, keys.status(config.device))
             entities += [js_pub, cf_pub, self._status_pub]
             if config.run.ros2:
+                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
+
                 self._ros2 = Ros2Outputs(
                     session, ROLE, config.device,
                     (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
-from typing import Final
-
-from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
-from rosbags.typesys.store import Typestore
+from typing import TYPE_CHECKING, Final
 
 from teleop_force.errors import ConfigurationError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 #: The project's interface package, as a lab builds it.
 INTERFACE_PACKAGE: Final = "teleop_force_msgs"
@@ -60,6 +60,8 @@ def msg_file(ros_type: str) -> Path:
 @cache
 def typestore() -> Typestore:
     """Return the shared typestore: ROS 2 Kilted's types and ``teleop_force_msgs``."""
+    from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+
     store = get_typestore(Stores.ROS2_KILTED)
     types = {}
     for ros_type in PROJECT_TYPES:
@@ -75,6 +77,8 @@ def typestore() -> Typestore:
 @cache
 def type_hash(ros_type: str) -> str:
     """Return ``RIHS01_<hex>`` of ``ros_type``, the hash rmw_zenoh puts in its keys."""
+    from rosbags.typesys import TypesysError
+
     try:
         return str(typestore().hash_rihs01(ros_type))
     except (KeyError, TypesysError) as exc:
@@ -84,6 +88,8 @@ def type_hash(ros_type: str) -> str:
 @cache
 def schema_text(ros_type: str) -> str:
     """Return the ``ros2msg`` schema of ``ros_type`` with its dependencies (MCAP, rosbag2)."""
+    from rosbags.typesys import TypesysError
+
     try:
         text, _ = typestore().generate_msgdef(ros_type, ros_version=2)
     except (KeyError, TypesysError) as exc:

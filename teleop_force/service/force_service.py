@@ -83,7 +83,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import zenoh
@@ -137,7 +137,6 @@ from teleop_force.service.counters import (
 from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.service.residual_watch import ResidualWatch
-from teleop_force.service.ros2_edge import Ros2Edge
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import keys
@@ -153,6 +152,9 @@ from teleop_force.transport.pubsub import (
     undeclare_all,
 )
 from teleop_force.transport.session import open_session, options_from_args
+
+if TYPE_CHECKING:
+    from teleop_force.service.ros2_edge import Ros2Edge
 
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
@@ -319,6 +321,8 @@ class ForceService:
         session = self.session
         self._publisher = declare_data_publisher(session, self._estimate_key)
         if self.config.ros2 and not self.config.zenoh_floor:
+            from teleop_force.service.ros2_edge import Ros2Edge  # rosbags: with --ros2 only
+
             self._ros2 = Ros2Edge(
                 session, device, self.n_joints, self._estimate_guarded, self._count_malformed
             )
