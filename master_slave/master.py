@@ -29,7 +29,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -56,6 +56,8 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
+from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.topics import SETPOINT_JS
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -71,6 +73,10 @@ from teleop_force.transport.pubsub import (
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
+
+if TYPE_CHECKING:
+    from master_slave.ros2_outputs import Ros2Outputs
+    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "master"
 #: Joints of the Omni: an estimate for another count is malformed.
@@ -140,6 +146,23 @@ class FeedbackInbox:
             with self._lock:
                 self.malformed += 1
             return
+        self._keep(seq, t_ns, f_n, arrival_ns)
+
+    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback (``--ros2``): a WrenchStamped; seq and latency from the attachment."""
+        from teleop_force.ros2 import codec
+
+        arrival_ns = time.time_ns()
+        try:
+            f_n = codec.decode_wrench(payload).force_n
+        except MessageError:
+            with self._lock:
+                self.malformed += 1
+            return
+        seq = attachment.sequence_number & SEQ_MASK
+        self._keep(seq, attachment.source_timestamp_ns, f_n, arrival_ns)
+
+    def _keep(self, seq: int, t_ns: int, f_n: Sequence[float], arrival_ns: int) -> None:
         force = np.array(f_n)
         with self._lock:
             self.seqs.observe(seq)
@@ -200,6 +223,7 @@ class MasterProcess:
         self.loop = RateLoop(config.loop)
         self.feedback = FeedbackInbox()
         self.published = 0
+        self._ros2: Ros2Outputs | None = None
         self.waited_for_subscriber_s = 0.0
         #: Time spent publishing a setpoint (congestion control BLOCK waits here).
         self.put_time = LatencyHistogram()
@@ -248,7 +272,20 @@ class MasterProcess:
             sp_pub = declare_data_publisher(session, keys.setpoint_js(config.device))
             js_pub = declare_data_publisher(session, keys.measured_js(config.device))
             entities += [sp_pub, js_pub]
-            if config.haptic_feedback:
+            if config.run.ros2:
+                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
+
+                self._ros2 = Ros2Outputs(
+                    session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
+                )
+            if config.haptic_feedback and self._ros2 is not None:
+                self._ros2.node.subscription(
+                    ros2_topics.topic_name(config.slave, ros2_topics.ESTIMATED_CF),
+                    ros2_topics.ESTIMATED_CF.ros_type,
+                    self.feedback.on_ros2_sample,
+                    direct=True,
+                )
+            elif config.haptic_feedback:
                 entities.append(
                     declare_subscriber(
                         session,
@@ -276,7 +313,7 @@ class MasterProcess:
                 )
                 started = time.perf_counter()
                 matched = wait_for_subscribers(
-                    sp_pub,
+                    sp_pub if self._ros2 is None else self._ros2.zenoh_publisher(SETPOINT_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=slave_seen.is_set,
@@ -290,6 +327,9 @@ class MasterProcess:
             )
             self._control_loop(sp_pub, js_pub)
         finally:
+            ros2, self._ros2 = self._ros2, None
+            if ros2 is not None:
+                ros2.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
@@ -299,6 +339,7 @@ class MasterProcess:
         config = self.config
         plant, hand, loop, operator = self.plant, self.hand, self.loop, self.operator
         put_time, stop, feedback = self.put_time, self.stop, self.feedback
+        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -321,6 +362,8 @@ class MasterProcess:
             put_started_s = perf_counter()
             put(sp_pub, setpoint)
             put_time.add(perf_counter() - put_started_s)
+            if ros2 is not None:
+                ros2.setpoint(m.JointSetpoint(seq, stamp_ns, q_floats))
             q_hand, qd_hand = operator.reference(k)
             tau_hand = hand.update(q_hand, q, qd_hand)
             motor: Sequence[float] = no_torque
@@ -331,10 +374,12 @@ class MasterProcess:
                     tau_hand = tau_hand + tau_motor
                     motor = tau_motor.tolist()
             plant.command_torque(tau_hand)
-            put(
-                js_pub,
-                m.pack_joint_state(seq, stamp_ns, q_floats, hand.velocity_rad_s.tolist(), motor),
-            )
+            qd_floats = hand.velocity_rad_s.tolist()
+            put(js_pub, m.pack_joint_state(seq, stamp_ns, q_floats, qd_floats, motor))
+            if ros2 is not None:
+                ros2.joint_state(
+                    m.JointState(seq, stamp_ns, tuple(q_floats), tuple(qd_floats), tuple(motor))
+                )
             self.published += 1
             plant.step()
 

@@ -41,7 +41,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -64,6 +64,8 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.topics import MEASURED_JS
 from teleop_force.simulation import (
     EFFECT_NAMES,
     PID,
@@ -88,6 +90,10 @@ from teleop_force.transport.pubsub import (
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
+
+if TYPE_CHECKING:
+    from master_slave.ros2_outputs import Ros2Outputs
+    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "slave"
 #: Joints of the Omni: a setpoint for another count is malformed.
@@ -256,10 +262,39 @@ class SetpointInbox:
         try:
             seq, t_ns, q = m.unpack_joint_setpoint(sample.payload.to_bytes(), JOINTS)
         except MessageError as exc:
-            with self._lock:
-                self.malformed += 1
-                self.last_malformed = str(exc)
+            self._count_malformed(exc)
             return
+        self._keep(seq, t_ns, q, arrival_ns, arrival_s)
+
+    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback (``--ros2``): a JointState setpoint in the model's coordinates.
+
+        Its loss is counted from the attachment's sequence number, its latency from the
+        attachment's source time.
+        """
+        from teleop_force.ros2 import codec
+
+        arrival_ns = time.time_ns()
+        arrival_s = time.perf_counter()
+        try:
+            msg, named = codec.decode_joint_setpoint(payload, attachment.sequence_number & SEQ_MASK)
+            names = ros2_topics.model_joint_names(JOINTS)
+            if msg.n_joints != JOINTS or named.names not in ((), names):
+                got = list(named.names) or msg.n_joints
+                raise MessageError(f"setpoint of joints {got}, expected {list(names)}")
+        except MessageError as exc:
+            self._count_malformed(exc)
+            return
+        self._keep(msg.seq, attachment.source_timestamp_ns, msg.q_rad, arrival_ns, arrival_s)
+
+    def _count_malformed(self, exc: MessageError) -> None:
+        with self._lock:
+            self.malformed += 1
+            self.last_malformed = str(exc)
+
+    def _keep(
+        self, seq: int, t_ns: int, q: tuple[float, ...], arrival_ns: int, arrival_s: float
+    ) -> None:
         with self._lock:
             self.seqs.observe(seq)
             self.latency.add((arrival_ns - t_ns) * 1e-9)
@@ -336,6 +371,7 @@ class SlaveProcess:
         self._status_seq = 0
         self._last_status_s = -math.inf
         self._status_pub: zenoh.Publisher | None = None
+        self._ros2: Ros2Outputs | None = None
         #: The plant effect switched on mid-session, once it is (``effect``, ``at_s``).
         self.switched_effect: dict[str, Any] | None = None
 
@@ -391,14 +427,29 @@ class SlaveProcess:
             cf_pub = declare_data_publisher(session, keys.measured_cf(config.device))
             self._status_pub = declare_data_publisher(session, keys.status(config.device))
             entities += [js_pub, cf_pub, self._status_pub]
-            entities.append(
-                declare_subscriber(
-                    session,
-                    keys.setpoint_js(config.master),
-                    # run on Zenoh's receive thread: no hand-over to a Python thread per sample
-                    zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
+            if config.run.ros2:
+                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
+
+                self._ros2 = Ros2Outputs(
+                    session, ROLE, config.device,
+                    (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
+                )  # fmt: skip
+            if self._ros2 is not None:  # the setpoints as ROS JointStates only
+                self._ros2.node.subscription(
+                    ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),
+                    ros2_topics.SETPOINT_JS.ros_type,
+                    self.inbox.on_ros2_sample,
+                    direct=True,
                 )
-            )
+            else:
+                entities.append(
+                    declare_subscriber(
+                        session,
+                        keys.setpoint_js(config.master),
+                        # on Zenoh's receive thread: no hand-over to a Python thread per sample
+                        zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
+                    )
+                )
             entities.append(
                 declare_liveliness_subscriber(
                     session, keys.alive(config.master, "master"), self.presence.on_sample
@@ -412,7 +463,7 @@ class SlaveProcess:
                 # The master too (its token): a peer joining while the loop runs holds up
                 # the loop's puts for tens of milliseconds (Zenoh updates its routes).
                 matched = wait_for_subscribers(
-                    js_pub,
+                    js_pub if self._ros2 is None else self._ros2.zenoh_publisher(MEASURED_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=lambda: self.presence.alive,
@@ -430,6 +481,9 @@ class SlaveProcess:
             self.safety.stop("slave stopped")
             self._publish_status(time.perf_counter(), force=True)
         finally:
+            ros2, self._ros2 = self._ros2, None
+            if ros2 is not None:
+                ros2.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
@@ -439,6 +493,7 @@ class SlaveProcess:
         config = self.config
         plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
         presence, put_time, stop = self.presence, self.put_time, self.stop
+        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -486,17 +541,17 @@ class SlaveProcess:
                     self._switch_effect(history, k * config.loop.period_s)
                     switch_tick = None
             seq = k & SEQ_MASK
-            joint_state = m.pack_joint_state(
-                seq, stamp_ns, q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
-            )
+            q_l, qd_l, tau_l = q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
+            joint_state = m.pack_joint_state(seq, stamp_ns, q_l, qd_l, tau_l)
             put_started_s = perf_counter()
             put(js_pub, joint_state)
             put_time.add(perf_counter() - put_started_s)
             force = state.f_tip_in_base_n
-            put(
-                cf_pub,
-                m.pack_contact_force(seq, stamp_ns, no_force if force is None else force.tolist()),
-            )
+            f_n = no_force if force is None else force.tolist()
+            put(cf_pub, m.pack_contact_force(seq, stamp_ns, f_n))
+            if ros2 is not None:
+                ros2.joint_state(m.JointState(seq, stamp_ns, tuple(q_l), tuple(qd_l), tuple(tau_l)))
+                ros2.true_force(m.ContactForce(seq, stamp_ns, f_n))
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)
@@ -534,6 +589,8 @@ class SlaveProcess:
             return
         status = m.Status(self._status_seq, time.time_ns(), self.safety.state, self.safety.reason)
         put(self._status_pub, status.encode())
+        if self._ros2 is not None:
+            self._ros2.status(status)
         self._status_seq += 1
         self._last_status_s = now_s
 

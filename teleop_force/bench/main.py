@@ -1,6 +1,6 @@
 """``teleop-force bench``: performance figures of this machine, measured in one run.
 
-Six figures, each measured in the same run as its reference so that it holds as a ratio on
+Seven figures, each measured in the same run as its reference so that it holds as a ratio on
 a noisy machine (see BENCHMARKS.md for a full run and what was optimised):
 
 1. the 1 kHz estimation step (:mod:`teleop_force.bench.estimation`) in µs and as a multiple
@@ -19,6 +19,8 @@ a noisy machine (see BENCHMARKS.md for a full run and what was optimised):
 7. the cold start: from the ``demo`` command to its first estimate on an empty numba cache,
    the compile time of each kernel group, and the same on the warm cache
    (:mod:`teleop_force.bench.cold_start`), with the shipped model.
+8. CDR encode and decode per ROS 2 message type, against the wire format's
+   (:mod:`teleop_force.bench.cdr`).
 
 Inputs are generated (:mod:`teleop_force.bench.data`). :func:`run_bench` returns one dict
 whose keys name the figure and its unit; ``teleop-force bench --json`` prints it as one JSON
@@ -97,6 +99,8 @@ class BenchOptions:
         batch_session_s: Length of the session of the batch figures.
         cold_start: Run the cold-start figures (two demos, the first on an empty numba cache).
         cold_start_duration_s: How long each of those demos runs from its first estimate.
+        cdr: Time CDR encode and decode per ROS 2 message type.
+        cdr_samples: Timed calls per message type and direction.
         work_dir: Where models and sessions are written (default: a temporary folder).
         seed: Seed of every simulation.
 
@@ -119,6 +123,8 @@ class BenchOptions:
     batch_session_s: float = 600.0
     cold_start: bool = True
     cold_start_duration_s: float = 5.0
+    cdr: bool = True
+    cdr_samples: int = 20_000
     work_dir: Path | None = None
     seed: int = 0
 
@@ -136,6 +142,7 @@ class BenchOptions:
             "isolated_replays": False,
             "batch_session_s": 5.0,
             "cold_start_duration_s": 2.0,
+            "cdr_samples": 1_000,
         }
         values.update(changes)
         return cls(**values)
@@ -164,7 +171,7 @@ def _versions() -> dict[str, str]:
 def _parts(options: BenchOptions) -> list[str]:
     flags = {"estimation": options.estimation, "replay": options.replay,
              "messaging": options.messaging, "batch": options.batch,
-             "cold-start": options.cold_start}  # fmt: skip
+             "cold-start": options.cold_start, "cdr": options.cdr}  # fmt: skip
     return ["identification"] + [name for name, on in flags.items() if on]
 
 
@@ -250,6 +257,10 @@ def run_bench(options: BenchOptions, log: Callable[[str], None] = lambda s: None
             result.update(_guarded_part(
                 "cold_start", options.cold_start, _COLD_START_KEYS,
                 lambda: _cold_start_figures(options, log), log,
+            ))  # fmt: skip
+            # 8. CDR encode / decode per ROS 2 message type
+            result.update(_guarded_part(
+                "cdr", options.cdr, _CDR_KEYS, lambda: _cdr_figures(options, log), log
             ))  # fmt: skip
         result["bench_wall_s"] = round(total.wall_s, 2)
         result["bench_cpu_s"] = round(total.cpu_s, 2)
@@ -527,6 +538,13 @@ def _cold_start_figures(options: BenchOptions, log: Callable[[str], None]) -> di
     return measure_cold_start(options.cold_start_duration_s, None, log)
 
 
+def _cdr_figures(options: BenchOptions, log: Callable[[str], None]) -> dict[str, Any]:
+    from teleop_force.bench.cdr import cdr_figures
+
+    log(f"cdr: encode and decode per ROS 2 message type, {options.cdr_samples} calls each")
+    return cdr_figures(options.cdr_samples)
+
+
 def _messaging_figures(
     options: BenchOptions, model_path: Path, log: Callable[[str], None]
 ) -> dict[str, Any]:
@@ -559,7 +577,13 @@ _ESTIMATION_KEYS = (
 )  # fmt: skip
 #: Parts of ``teleop-force bench`` that ``--only`` selects (identification always runs: its
 #: model is the benchmark model of the others).
-PARTS = ("identification", "estimation", "replay", "messaging", "batch", "cold-start")
+PARTS = ("identification", "estimation", "replay", "messaging", "batch", "cold-start", "cdr")
+
+_CDR_KEYS = (
+    "cdr_encode_p50_us_by_type", "cdr_encode_p99_us_by_type", "cdr_decode_p50_us_by_type",
+    "cdr_decode_p99_us_by_type", "wire_encode_p50_us_by_type", "wire_decode_p50_us_by_type",
+    "cdr_samples",
+)  # fmt: skip
 
 _REPLAY_KEYS = (
     "replay_x_realtime", "replay_peak_rss_mb", "replay_x_realtime_by_length_s",
@@ -666,6 +690,7 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
         "replay": not args.no_replay and "replay" in parts,
         "batch": "batch" in parts,
         "cold_start": not args.no_cold_start and "cold-start" in parts,
+        "cdr": "cdr" in parts,
         "messaging_model": args.messaging_model,
     }
     if args.messaging_duration is not None:

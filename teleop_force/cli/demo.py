@@ -134,6 +134,8 @@ from teleop_force.transport.session import (
 from teleop_force.transport.stream_stats import SequenceTracker
 
 DEFAULT_DASHBOARD_PORT: Final = 8080
+#: rmw_zenoh's router port (``rmw_zenohd``; its nodes connect to ``tcp/localhost:7447``).
+ROS2_ROUTER_PORT: Final = 7447
 #: SCHED_FIFO priority of the real-time children (service, slave, master) by default.
 DEFAULT_RT_PRIORITY: Final = 10
 #: Their nice value when the real-time class is off or not allowed.
@@ -179,6 +181,11 @@ class DemoConfig:
             the rendezvous port): every process, the supervisor included, opens its session
             in client mode and connects to it, as master and slave on two hosts would; no
             peer-to-peer link. Its CPU is reported as ``router``.
+        ros2: The service, the slave and the master are ROS 2 nodes too (their ``--ros2``,
+            [docs/ros2.md]), and the demo runs through a router on ``ROS2_ROUTER_PORT``
+            (7447, unless ``zenoh_port`` says otherwise), where rmw_zenoh's nodes find it:
+            it starts ``python -m teleop_force.transport.router`` there when the port is
+            free, and joins the router already listening there (``rmw_zenohd``) when not.
         realtime_nice: Nice value of the service, the slave and the master (``None``: the
             supervisor's); it matters when they do not run in the real-time class. A
             negative value needs the same privilege.
@@ -207,6 +214,7 @@ class DemoConfig:
     master_args: tuple[str, ...] = ()
     router: bool = False
     record: bool = True
+    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Check the ranges and ids."""
@@ -231,6 +239,16 @@ class DemoConfig:
 
 
 # ------------------------------------------------------------------------------ children
+
+
+def _accepts_connections(endpoint: str) -> bool:
+    """Return whether something accepts TCP connections on ``tcp/<host>:<port>`` now."""
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    try:
+        with socket.create_connection((host, int(port)), 0.2):
+            return True
+    except OSError:
+        return False
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
@@ -588,10 +606,13 @@ class DemoSupervisor:
             # subscribes to (congestion control BLOCK) then wait for it.
             with contextlib.suppress(OSError):
                 os.setpriority(os.PRIO_PROCESS, 0, config.realtime_nice)
-        port = config.zenoh_port or free_tcp_port()
+        port = config.zenoh_port or (ROS2_ROUTER_PORT if config.ros2 else free_tcp_port())
         self.endpoint = listen_endpoint(port)
-        if config.router:
+        if config.ros2 and _accepts_connections(self.endpoint):
+            self.say(f"joining the Zenoh router already on {self.endpoint}")
+        elif config.router or config.ros2:
             self._start_router(log)
+        if config.router or config.ros2:
             options = ZenohOptions(
                 mode="client", connect=(self.endpoint,), multicast_scouting=False
             )
@@ -607,7 +628,7 @@ class DemoSupervisor:
                 )
             )
             entities += self.monitor.subscribe(self.session, config.slave)
-            topology = "router, clients" if config.router else "peer mode"
+            topology = "router, clients" if config.router or config.ros2 else "peer mode"
             self.say(f"zenoh endpoint: {self.endpoint} ({topology}, no multicast)")
             self.say(f"recording: {self.recording}   logs: {self.log_path}")
             self._warm_up()
@@ -683,7 +704,7 @@ class DemoSupervisor:
         self._scheduling = {c.name: c.scheduling() for c in self.children}
 
     def _connect_args(self) -> list[str]:
-        if self.config.router:
+        if self.config.router or self.config.ros2:
             return ["--mode", "client", "--connect", self.endpoint, "--no-multicast"]
         return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
 
@@ -697,6 +718,7 @@ class DemoSupervisor:
         args = [
             "--record", str(self.recording), "--device", config.slave, "--master", config.master,
             "--model", str(config.model or DEFAULT_MODEL_PATH),
+            *(["--ros2"] if config.ros2 else []),
         ]  # fmt: skip
         argv = _python_module("teleop_force.service.session_recorder", *args, *self._connect_args())
         child = Child("recorder", argv, log, nice=config.realtime_nice)
@@ -712,10 +734,9 @@ class DemoSupervisor:
         child = Child("router", argv, log, nice=self.config.realtime_nice, rt_priority=priority)
         self.children.append(child)
         self.say(f"started router (pid {child.pid}) on {self.endpoint}")
-        host, port = self.endpoint.removeprefix("tcp/").rsplit(":", 1)
         deadline = time.perf_counter() + self.config.startup_timeout_s
         while time.perf_counter() < deadline and child.running():
-            with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.2):
+            if _accepts_connections(self.endpoint):
                 return
             time.sleep(0.05)
         child.stop()
@@ -739,9 +760,13 @@ class DemoSupervisor:
         ]  # fmt: skip
         if config.haptic_feedback:
             master.append("--haptic-feedback")
+        if config.ros2:
+            service.append("--ros2")
+            master.append("--ros2")
         slave = [
             "--device", config.slave, "--master", config.master,
             "--surface-y", surface, "--wait-subscribers", wait, *config.slave_args,
+            *(["--ros2"] if config.ros2 else []),
         ]  # fmt: skip
         steps = [
             (

@@ -266,6 +266,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         accuracy=AccuracyConfig(contact_threshold_n=args.contact_threshold),
         record=not args.no_record,
         router=args.router,
+        ros2=args.ros2,
         service_args=tuple(
             flag
             for flag, on in (("--adapt", args.adapt), ("--zenoh-floor", args.zenoh_floor))
@@ -739,6 +740,11 @@ def _add_demo(subparsers: _Subparsers) -> None:
     p.add_argument(
         "--zenoh-floor", action="store_true",
         help="run the service as its Zenoh floor (same traffic, no work; for benchmarks)",
+    )  # fmt: skip
+    p.add_argument(
+        "--ros2", action="store_true",
+        help="service, slave and master are ROS 2 nodes too (rmw_zenoh keys), through a "
+        "router on 127.0.0.1:7447 (started, or joined when one listens there)",
     )  # fmt: skip
     p.add_argument(
         "--rt-priority", type=int, default=None, metavar="P",

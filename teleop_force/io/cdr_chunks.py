@@ -119,8 +119,10 @@ class ChunkedMcapWriter:
 
     """
 
-    def __init__(self, file: DirectFile, *, chunk_size_bytes: int, compression: str) -> None:
-        """Start the file: magic and header record."""
+    def __init__(
+        self, file: DirectFile, *, chunk_size_bytes: int, compression: str, profile: str = ""
+    ) -> None:
+        """Start the file: magic and header record (``profile``: MCAP's, e.g. ``ros2``)."""
         if compression not in COMPRESSIONS:
             raise ConfigurationError(
                 f"compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}"
@@ -142,7 +144,7 @@ class ChunkedMcapWriter:
         self.messages = 0
         self.open_messages = 0
         builder = RecordBuilder()
-        Header(profile="", library="teleop-force").write(builder)
+        Header(profile=profile, library="teleop-force").write(builder)
         self._file.write(MAGIC + builder.end())
 
     # -- top-level records

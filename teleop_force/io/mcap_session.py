@@ -115,6 +115,8 @@ class SessionWriter:
         compression: ``zstd`` (default), ``lz4`` or ``none``.
         message_encoding: ``cdr`` (default) or ``json`` (the layout of recordings made before
             the CDR encoding, for export).
+        profile: The MCAP header's profile: ``ros2`` for a session that records ROS 2
+            messages (:meth:`write_ros2`), ``""`` (default) otherwise.
 
     """
 
@@ -127,6 +129,7 @@ class SessionWriter:
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         compression: str = "zstd",
         message_encoding: str = "cdr",
+        profile: str = "",
     ) -> None:
         if compression not in COMPRESSIONS:
             raise ConfigurationError(
@@ -152,6 +155,8 @@ class SessionWriter:
         self._lock = threading.Lock()
         self._schema_ids: dict[type[msg.Message], int] = {}
         self._channels: dict[str, _Channel] = {}
+        self._ros2_schema_ids: dict[str, int] = {}
+        self._ros2_channels: dict[str, tuple[int, str]] = {}
         self._closed = False
         try:
             self._file = DirectFile(self.path)
@@ -159,7 +164,10 @@ class SessionWriter:
             raise DataError(f"cannot create file: {exc.strerror or exc}", path=self.path) from None
         try:
             self._mcap = ChunkedMcapWriter(
-                self._file, chunk_size_bytes=chunk_size_bytes, compression=compression
+                self._file,
+                chunk_size_bytes=chunk_size_bytes,
+                compression=compression,
+                profile=profile,
             )
             info = {
                 "format": FORMAT_NAME,
@@ -206,6 +214,65 @@ class SessionWriter:
             with self._io_errors():
                 self._add(channel, message, log_time_ns)
                 self._flush_locked(due_only=True)
+
+    def write_ros2(
+        self,
+        topic: str,
+        ros_type: str,
+        payload: bytes,
+        sequence: int,
+        publish_time_ns: int,
+        log_time_ns: int,
+    ) -> None:
+        """Record one ROS 2 message as it was received (the CDR bytes untouched).
+
+        Channel ``topic`` (a ROS topic name, ``/slave/measured_js``), message encoding
+        ``cdr``, a ``ros2msg`` schema named ``ros_type`` (``sensor_msgs/msg/JointState``,
+        its text with its dependencies from :mod:`teleop_force.ros2.interfaces`); MCAP
+        ``sequence`` = ``sequence`` modulo 2**32 (rmw_zenoh's attachment), ``publish_time`` =
+        ``publish_time_ns`` (its source time; ``log_time_ns`` if negative). Raise DataError for
+        a topic that is no ROS name or already carries another type, an unknown type, or on
+        a write error.
+        """
+        self._check_log_time(log_time_ns)
+        with self._lock:
+            self._check_open()
+            channel_id = self._ros2_channel(topic, ros_type)
+            publish_ns = publish_time_ns if publish_time_ns >= 0 else log_time_ns
+            with self._io_errors():
+                self._mcap.add_message(
+                    channel_id, sequence & 0xFFFF_FFFF, log_time_ns, publish_ns, bytes(payload)
+                )
+                self._flush_locked(due_only=True)
+
+    def _ros2_channel(self, topic: str, ros_type: str) -> int:
+        """Return the channel id of a ROS 2 topic, declaring it (and its schema) first."""
+        known = self._ros2_channels.get(topic)
+        if known is not None:
+            if known[1] != ros_type:
+                raise DataError(
+                    f"channel {topic!r} carries {known[1]}, not {ros_type}", path=self.path
+                )
+            return known[0]
+        if not isinstance(topic, str) or not topic.startswith("/") or topic in self._channels:
+            raise DataError(f"bad ROS 2 channel name {topic!r}", path=self.path)
+        from teleop_force.ros2.interfaces import schema_text  # rosbags: only when recording ROS
+
+        schema_id = self._ros2_schema_ids.get(ros_type)
+        if schema_id is None:
+            try:
+                text = schema_text(ros_type)
+            except ConfigurationError as exc:
+                raise DataError(str(exc), path=self.path, column=topic) from None
+            with self._io_errors():
+                schema_id = self._mcap.add_schema(
+                    ros_type, cdr.SCHEMA_ENCODING, text.encode("utf-8")
+                )
+            self._ros2_schema_ids[ros_type] = schema_id
+        with self._io_errors():
+            channel_id = self._mcap.add_channel(topic, cdr.MESSAGE_ENCODING, schema_id)
+        self._ros2_channels[topic] = (channel_id, ros_type)
+        return channel_id
 
     def _check_log_time(self, log_time_ns: int) -> None:
         if not isinstance(log_time_ns, int) or not 0 <= log_time_ns < _MAX_LOG_TIME_NS:

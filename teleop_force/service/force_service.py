@@ -13,6 +13,11 @@ For one device (``--device``, the slave)::
     publishes   omni/<device>/service/diagnostics  the residual watch (JSON, 1 Hz)
     token       omni/<device>/alive/service
 
+With ``--ros2`` it is also a ROS 2 node on rmw_zenoh's keys (:mod:`.ros2_edge`): it estimates
+on ``sensor_msgs/msg/JointState`` from ``/<device>/measured_js`` instead of the wire
+JointState (one source: a sample published both ways is estimated on once), and publishes
+every estimate on ``/<device>/estimated_cf`` and ``/<device>/estimate_diagnostics`` too.
+
 The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
 at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
 receive callback only appends the two payloads to its preallocated ring. The watch makes its
@@ -77,7 +82,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import zenoh
@@ -106,6 +111,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import topics
 from teleop_force.service.adaptation import (
     DEFAULT_FORCE_THRESHOLD_N,
     DEFAULT_GUARD_S,
@@ -146,6 +152,9 @@ from teleop_force.transport.pubsub import (
 )
 from teleop_force.transport.session import open_session, options_from_args
 
+if TYPE_CHECKING:
+    from teleop_force.service.ros2_edge import Ros2Edge
+
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
 #: The control thread is waited for at most this long on close [s].
@@ -176,6 +185,9 @@ class ServiceConfig:
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
+        ros2: Be a ROS 2 node too (:mod:`teleop_force.service.ros2_edge`): estimate on
+            rmw_zenoh's JointStates (instead of the wire ones) and publish every estimate on
+            rmw_zenoh's keys as well.
 
     """
 
@@ -190,10 +202,13 @@ class ServiceConfig:
     zenoh_floor: bool = False
     residual_watch: bool = True
     adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
+    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
         keys.validate_chunk(self.device)
+        if self.ros2:
+            topics.validate_device(self.device)
         if self.master is not None:
             keys.validate_chunk(self.master, "master device id")
         if self.record_path is not None:
@@ -276,6 +291,7 @@ class ForceService:
         self._closed = False
         self._entities: list[Any] = []
         self._publisher: zenoh.Publisher | None = None
+        self._ros2: Ros2Edge | None = None
         self._queries: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
         self._control_thread: threading.Thread | None = None
         self._logged: set[str] = set()
@@ -303,11 +319,19 @@ class ForceService:
         device = self.config.device
         session = self.session
         self._publisher = declare_data_publisher(session, self._estimate_key)
+        if self.config.ros2 and not self.config.zenoh_floor:
+            from teleop_force.service.ros2_edge import Ros2Edge  # rosbags: with --ros2 only
+
+            self._ros2 = Ros2Edge(
+                session, device, self.n_joints, self._estimate_guarded, self._count_malformed
+            )
         watch = self.residual_watch
         if watch is not None:
             diagnostics = session.declare_publisher(keys.service_diagnostics(device))
             self._entities.append(diagnostics)
-            watch.start(diagnostics.put)
+            watch.start(
+                diagnostics.put if self._ros2 is None else self._diagnostics_both(diagnostics)
+            )
         self._control_thread = threading.Thread(
             target=self._serve_controls, name="controls", daemon=True
         )
@@ -319,9 +343,12 @@ class ForceService:
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
         else:
-            self._entities.append(
-                declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
-            )
+            if self._ros2 is not None:  # the ROS JointState only: one sample published twice
+                self._ros2.subscribe()  # is estimated on once
+            else:
+                self._entities.append(
+                    declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
+                )
             if self.recording.recorder is not None:
                 self._subscribe_recorded(self._on_recorded)
         self._entities.append(
@@ -339,6 +366,17 @@ class ForceService:
         self._started_s = time.perf_counter()
         return self
 
+    def _diagnostics_both(self, publisher: zenoh.Publisher) -> Any:
+        """Return the watch's publish callback with ``--ros2``: the JSON, then the ROS report."""
+        edge = self._ros2
+
+        def publish(payload: bytes) -> None:
+            publisher.put(payload)
+            if edge is not None:
+                edge.publish_service_diagnostics(payload)
+
+        return publish
+
     def close(self) -> None:
         """Stop processing, undeclare everything, then close the recording (idempotent).
 
@@ -354,6 +392,10 @@ class ForceService:
         entities, self._entities = self._entities, []
         recorded = self.recording.take_entities()
         undeclare_all(*reversed(entities), *recorded)
+        with self._lock:
+            edge, self._ros2 = self._ros2, None
+        if edge is not None:
+            edge.close()
         if already:
             return
         if self._control_thread is not None:
@@ -389,8 +431,14 @@ class ForceService:
         arrival_ns = time.time_ns()
         if self._closed:
             return
+        self._estimate_guarded(sample.payload.to_bytes(), arrival_ns)
+
+    def _estimate_guarded(self, payload: bytes, arrival_ns: int) -> None:
+        """Estimate on one wire JointState of the device (:meth:`_on_own_js`, the ROS 2 edge)."""
+        if self._closed:
+            return
         try:
-            self._on_joint_state(self._own_js_key, sample.payload.to_bytes(), arrival_ns)
+            self._on_joint_state(self._own_js_key, payload, arrival_ns)
         except Exception as exc:  # nothing may stop the estimation
             # TeleopForceError: e.g. the session went away under us; anything else is a bug,
             # logged once per kind, and the next joint state is estimated on regardless.
@@ -502,6 +550,8 @@ class ForceService:
             [*force, *out[3 : 3 + n], *weight, *out[3 + n : 3 + 3 * n]], mask,
         )  # fmt: skip
         put(self._publisher, payload)
+        if self._ros2 is not None:
+            self._ros2.publish_estimate(payload)
         counters.count_published(seq, force, mask, n, out[3 + 4 * n] != 0.0, t_ns, started_s)
         return payload, published_ns
 
@@ -819,6 +869,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-residual-watch", action="store_true",
         help="do not run the residual watch (omni/<device>/service/diagnostics)",
     )  # fmt: skip
+    parser.add_argument(
+        "--ros2", action="store_true",
+        help="also a ROS 2 node on rmw_zenoh's keys: /<device>/measured_js in, estimates out",
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
         "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
@@ -848,6 +902,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             zenoh_floor=args.zenoh_floor,
             residual_watch=not args.no_residual_watch,
             adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
+            ros2=args.ros2,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:

@@ -22,6 +22,14 @@ its FIFO empty, before this drain took it (a publisher on this clock stamps it a
 a millisecond before it arrives). Log times therefore never decrease on a key, whatever clock
 stamped the messages.
 
+With ``--ros2`` it also records every ROS 2 message of its domain (``<ROS_DOMAIN_ID>/**``,
+rmw_zenoh's keys) as it arrived: the CDR bytes untouched on a channel named by the ROS topic
+(``/slave/measured_js``) with the type's ``ros2msg`` schema, the MCAP sequence and publish
+time from rmw_zenoh's attachment (its sequence number and source time), the file's profile
+``ros2`` (:meth:`~teleop_force.io.mcap_session.SessionWriter.write_ros2`), so Foxglove's
+panels and ROS tools read those channels as a ROS 2 bag. A sample whose key is not a topic
+key or that has no valid attachment is counted as malformed and dropped.
+
 It answers ``omni/<device>/stats/recorder`` (JSON: the recorder's counters, the malformed
 messages by key) and holds the token ``omni/<device>/alive/recorder``; it stops on SIGINT /
 SIGTERM or ``--duration`` and closes the file (what was queued is written first).
@@ -41,9 +49,11 @@ from typing import Any, Final
 
 import zenoh
 
-from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.errors import ConfigurationError, DataError, MessageError, TeleopForceError
 from teleop_force.io.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.process.lifetime import StopSignal, log, write_json
+from teleop_force.ros2 import graph as ros2_graph
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.service.controls import create_exclusively
 from teleop_force.service.counters import MalformedCounter
 from teleop_force.service.recorder import BackgroundRecorder
@@ -72,9 +82,20 @@ _STAMP_OFFSET: Final = 8
 class SessionRecorder:
     """Zenoh subscriptions feeding a :class:`BackgroundRecorder` (module docstring)."""
 
-    def __init__(self, session: zenoh.Session, writer: SessionWriter, device: str) -> None:
-        """Prepare the recorder on ``writer``; nothing is subscribed until :meth:`start`."""
+    def __init__(
+        self, session: zenoh.Session, writer: SessionWriter, device: str, *, ros2: bool = False
+    ) -> None:
+        """Prepare the recorder on ``writer``; nothing is subscribed until :meth:`start`.
+
+        ``ros2``: also record the ROS 2 messages of the domain (module docstring).
+        """
         self.session = session
+        self.writer = writer
+        self.ros2 = ros2
+        self._ros2_queue: Any = None
+        self._ros2_drained_ns = 0
+        #: ROS 2 messages written.
+        self.ros2_written = 0
         self.device = keys.validate_chunk(device)
         self.malformed = MalformedCounter()
         self._lock = threading.Lock()
@@ -112,7 +133,35 @@ class SessionRecorder:
                 submit(str(sample.key_expr), payload, min(max(stamp_ns, earliest_ns), taken_ns))
                 count += 1
             self._drained_ns[i] = time.time_ns()
+        if self._ros2_queue is not None:
+            count += self._drain_ros2()
         self.received += count
+        return count
+
+    def _drain_ros2(self) -> int:
+        """Write every ROS 2 sample waiting, as received; return how many were taken."""
+        count = 0
+        earliest_ns = self._ros2_drained_ns
+        while (sample := self._ros2_queue.try_recv()) is not None:
+            taken_ns = time.time_ns()
+            count += 1
+            key = str(sample.key_expr)
+            try:
+                topic, ros_type = ros2_graph.parse_topic_key(key)
+                raw = sample.attachment
+                if raw is None:
+                    raise MessageError("sample without rmw_zenoh's attachment")
+                attachment = Attachment.decode(raw.to_bytes())
+                source_ns = attachment.source_timestamp_ns
+                self.writer.write_ros2(
+                    topic, ros_type, sample.payload.to_bytes(), attachment.sequence_number,
+                    source_ns, min(max(source_ns, earliest_ns), taken_ns),
+                )  # fmt: skip
+            except (MessageError, DataError) as exc:
+                self._count_malformed(key, exc)
+                continue
+            self.ros2_written += 1
+        self._ros2_drained_ns = time.time_ns()
         return count
 
     def _drain_loop(self) -> None:
@@ -128,6 +177,11 @@ class SessionRecorder:
             self._queues.append(subscriber)
             self._drained_ns.append(time.time_ns())
             self._entities.append(subscriber)
+        if self.ros2:
+            domain = ros2_graph.domain_id_from_env()
+            self._ros2_queue = declare_queue_subscriber(self.session, f"{domain}/**", FIFO_CAPACITY)
+            self._ros2_drained_ns = time.time_ns()
+            self._entities.append(self._ros2_queue)
         self._entities.append(
             declare_json_queryable(self.session, keys.process_stats(self.device, ROLE), self.stats)
         )
@@ -143,7 +197,7 @@ class SessionRecorder:
         self.drain()
         entities, self._entities = self._entities, []
         undeclare_all(*reversed(entities))
-        self._queues, self._drained_ns = [], []
+        self._queues, self._drained_ns, self._ros2_queue = [], [], None
         self.recorder.close()
 
     def stats(self) -> dict[str, Any]:
@@ -154,6 +208,7 @@ class SessionRecorder:
             "role": ROLE,
             "device": self.device,
             "received": self.received,
+            "ros2_written": self.ros2_written if self.ros2 else None,
             "recorder": self.recorder.stats(),
             "malformed": malformed,
         }
@@ -174,6 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--record-flush-s", type=float, default=DEFAULT_FLUSH_INTERVAL_S, metavar="S",
         help=f"hand chunks to the OS at least every S s (default {DEFAULT_FLUSH_INTERVAL_S:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--ros2", action="store_true",
+        help="also record the ROS 2 messages of ROS_DOMAIN_ID as received (profile ros2)",
     )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
@@ -201,13 +260,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
         if args.master is not None:
             metadata["master_device"] = keys.validate_chunk(args.master, "master device id")
-        writer = SessionWriter(path, metadata, flush_interval_s=args.record_flush_s)
+        writer = SessionWriter(
+            path,
+            metadata,
+            flush_interval_s=args.record_flush_s,
+            profile="ros2" if args.ros2 else "",
+        )
         session = open_session(options_from_args(args))
     except (TeleopForceError, OSError) as exc:
         log(ROLE, f"error: {exc}")
         return 2
     try:
-        recorder = SessionRecorder(session, writer, args.device).start()
+        recorder = SessionRecorder(session, writer, args.device, ros2=args.ros2).start()
         gc.collect()
         gc.freeze()
         log(ROLE, f"recording to {path}")

@@ -165,6 +165,58 @@ def _message_seeds() -> list[bytes]:
     return [x.encode() for x in message_examples()]
 
 
+def _ros2_decoders():
+    from teleop_force.ros2 import codec
+    from teleop_force.ros2.attachment import Attachment
+    from teleop_force.ros2.graph import parse_token
+
+    return (
+        lambda p: codec.decode_joint_state(p, 1),
+        lambda p: codec.decode_joint_setpoint(p, 1),
+        codec.decode_wrench,
+        lambda p: codec.decode_contact_force(p, 1),
+        codec.decode_estimate_diagnostics,
+        lambda p: codec.decode_status(p, 1),
+        lambda p: codec.decode_service_diagnostics(p, 1),
+        Attachment.decode,
+        lambda p: parse_token(p.decode("utf-8", "replace")),
+    )
+
+
+def _decode_ros2(data: bytes) -> object:
+    """Every ROS 2 decoder (CDR payloads, the attachment, a token) on the same bytes."""
+    results = []
+    for decode in _ros2_decoders():
+        try:
+            results.append(decode(data))
+        except MessageError as exc:
+            results.append(exc)
+    if all(isinstance(r, MessageError) for r in results):
+        raise results[0]
+    return results
+
+
+def _ros2_seeds() -> list[bytes]:
+    from teleop_force.ros2 import codec
+    from teleop_force.ros2.attachment import Attachment
+    from teleop_force.ros2.topics import OMNI_MODEL_JOINT_NAMES
+
+    examples: dict[type, m.Message] = {}
+    for example in message_examples():  # the first, 3-joint one of each type
+        examples.setdefault(type(example), example)
+    estimate = examples[m.ForceEstimateMessage]
+    seeds = [
+        codec.encode_joint_state(examples[m.JointState], OMNI_MODEL_JOINT_NAMES),
+        codec.encode_joint_setpoint(examples[m.JointSetpoint], OMNI_MODEL_JOINT_NAMES),
+        codec.encode_contact_force(examples[m.ContactForce], "base"),
+        *codec.encode_estimate(estimate, OMNI_MODEL_JOINT_NAMES, "base"),
+        codec.encode_status(examples[m.Status]),
+        Attachment(1, 2, bytes(range(16))).encode(),
+        (b"@ros2_lv/0/aac3/0/1/MP/%/%/n/%t/std_msgs::msg::dds_::String_/RIHS01_00/::,7:,:,:,,"),
+    ]
+    return seeds
+
+
 def _message_json_seeds() -> list[bytes]:
     return [json.dumps(x.to_json_dict()).encode() for x in message_examples()]
 
@@ -405,6 +457,9 @@ TARGETS: dict[str, Target] = {
         Target("Message classes .decode", _decode_each, (MessageError,), _message_seeds),
         Target("Message classes .from_json_dict", _from_json, (MessageError,), _message_json_seeds),
         Target("MCAP session reader", _read_mcap, (DataError,), lambda: list(_mcap_seed_bytes())),
+        Target(
+            "ROS 2 decoders (CDR, attachment, token)", _decode_ros2, (MessageError,), _ros2_seeds
+        ),
         Target("interchange CSV", _read_csv, (DataError,), lambda: list(_csv_seed_bytes())),
         Target("robot description file", _read_robot, (ModelError, DataError), _robot_seeds),
         Target("model file (DynamicModel.load)", _load_model, _MODEL_ERRORS, _model_seeds),

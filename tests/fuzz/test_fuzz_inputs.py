@@ -90,6 +90,12 @@ def test_fuzz_mcap_session_reader(data):
     exercise(TARGETS["MCAP session reader"], data)
 
 
+@fuzz(300)
+@given(st.one_of(st.binary(max_size=300), mutated("ROS 2 decoders (CDR, attachment, token)")))
+def test_fuzz_ros2_decoders(data):
+    exercise(TARGETS["ROS 2 decoders (CDR, attachment, token)"], data)
+
+
 @fuzz(200)
 @given(st.one_of(st.binary(max_size=500), mutated("interchange CSV", mutate_text)))
 def test_fuzz_interchange_csv(data):

@@ -1,0 +1,74 @@
+"""The ROS 2 publishers of the master and the slave (``--ros2``), beside their wire streams.
+
+One ROS 2 node per process (``teleop_force_master``, ``teleop_force_slave``, namespace ``/``),
+declared as rmw_zenoh declares one (:mod:`teleop_force.ros2.node`), publishing what the
+process publishes on its ``omni/<device>/...`` keys as standard messages on rmw_zenoh's keys
+(:mod:`teleop_force.ros2.topics`): the slave its ``/<device>/measured_js``
+(``sensor_msgs/msg/JointState``), ``/<device>/true_cf`` (``geometry_msgs/msg/WrenchStamped``,
+the simulated true tip force; zero out of contact) and ``/<device>/status``; the master its
+``/<device>/measured_js`` and ``/<device>/setpoint_js``. Joint names are the model's
+(``model_q1 model_q2 model_q3_absolute``): the plants run in the model's coordinates. With
+haptic feedback the master's node also subscribes to the slave's ``/<device>/estimated_cf``
+(:meth:`master_slave.master.FeedbackInbox.on_ros2_sample`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Final
+
+import zenoh
+
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.node import Node, Publisher
+from teleop_force.transport import messages as m
+
+JOINTS: Final = 3
+
+
+class Ros2Outputs:
+    """The node of one process and the publishers it asked for; :meth:`close` undeclares."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        role: str,
+        device: str,
+        kinds: Sequence[topics.Topic],
+    ) -> None:
+        """Declare node ``teleop_force_<role>`` and a publisher per topic kind of ``device``."""
+        codec.warm_up()  # rosbags compiles on first use: not on the loop's first tick
+        self.node = Node(session, f"teleop_force_{role}")
+        self.names = topics.model_joint_names(JOINTS)
+        self._publishers: dict[str, Publisher] = {
+            topic.kind: self.node.publisher(topics.topic_name(device, topic), topic.ros_type)
+            for topic in kinds
+        }
+
+    def zenoh_publisher(self, topic: topics.Topic) -> zenoh.Publisher:
+        """Return the Zenoh publisher of ``topic`` (to wait for its subscribers)."""
+        return self._publishers[topic.kind].zenoh_publisher
+
+    def joint_state(self, msg: m.JointState) -> None:
+        """Publish a measured joint state (position, velocity, commanded motor torque)."""
+        self._publishers[topics.MEASURED_JS.kind].publish(codec.encode_joint_state(msg, self.names))
+
+    def setpoint(self, msg: m.JointSetpoint) -> None:
+        """Publish a joint position setpoint."""
+        self._publishers[topics.SETPOINT_JS.kind].publish(
+            codec.encode_joint_setpoint(msg, self.names)
+        )
+
+    def true_force(self, msg: m.ContactForce) -> None:
+        """Publish the true tip force in the base frame."""
+        self._publishers[topics.TRUE_CF.kind].publish(
+            codec.encode_contact_force(msg, topics.BASE_FRAME)
+        )
+
+    def status(self, msg: m.Status) -> None:
+        """Publish the safety state."""
+        self._publishers[topics.STATUS.kind].publish(codec.encode_status(msg))
+
+    def close(self) -> None:
+        """Undeclare the publishers and the node's token."""
+        self.node.close()
