@@ -2,12 +2,12 @@ r"""``teleop-force demo``: master, slave, service (and dashboard) on loopback, s
 
 The supervisor opens the rendezvous Zenoh endpoint ``tcp/127.0.0.1:<free port>`` (peer mode,
 multicast scouting off); every child is a peer that ``--connect``\\ s to it, and Zenoh's gossip
-lets the peers connect to one another. First the children's compiled kernels are made ready:
-on a machine whose numba cache does not hold them yet, they are compiled in parallel processes,
-one per core, with a progress line per group on stderr
-(:mod:`teleop_force.process.warm_up`); a child then loads them before it declares itself up.
-The children start together (their imports overlap); each one's liveliness token tells the
-supervisor it is up:
+lets the peers connect to one another. On a machine whose numba cache does not hold the
+children's compiled kernels yet, they are compiled in parallel processes, one per core, with a
+progress line per group on stderr (:mod:`teleop_force.process.warm_up`); each child starts
+once the groups it runs are compiled (the recorder at once), and loads them before it declares
+itself up. The children start together otherwise (their imports overlap); each one's
+liveliness token tells the supervisor it is up:
 
 1. the force-estimation service (``python -m teleop_force.service.force_service``), recording
    the session to ``recordings/demo-<timestamp>.mcap``;
@@ -115,7 +115,13 @@ from teleop_force.process.lifetime import (
     process_start_wall_ns,
     write_json,
 )
-from teleop_force.process.warm_up import WarmUpReport, warm_up
+from teleop_force.process.warm_up import (
+    KERNEL_GROUPS,
+    GroupTiming,
+    WarmUpReport,
+    is_warm,
+    warm_up,
+)
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -575,6 +581,10 @@ class DemoSupervisor:
         self._load_at_run: list[float] | None = None
         self._scheduling: dict[str, dict[str, Any] | None] = {}
         self.warm_up: WarmUpReport | None = None
+        self._warm_up_thread: threading.Thread | None = None
+        #: Kernel groups compiled so far, under their condition (the warm-up's thread sets it).
+        self._compiled_groups = threading.Condition()
+        self._compiled_names: set[str] = set()
         #: The liveliness token each started child was waited for by.
         self._tokens: dict[str, str] = {}
         #: Seconds from this process's start to the first estimate (``None``: none came).
@@ -649,19 +659,49 @@ class DemoSupervisor:
         return summary
 
     def _warm_up(self) -> None:
-        """Compile the children's kernels in parallel first, unless they are cached.
+        """Compile the children's kernels in parallel, unless they are cached, in a thread.
 
-        Progress goes to stderr, one line per kernel group; the children then only load them.
+        Progress goes to stderr, one line per kernel group; each child starts once the groups
+        it runs are compiled (:meth:`_wait_for_kernels`), and then only loads them.
         """
-        self.warm_up = report = warm_up(
+        if is_warm(self.config.model):
+            self.warm_up = WarmUpReport(cached=True, seconds=0.0)
+            return
+        self._warm_up_thread = threading.Thread(
+            target=self._run_warm_up, name="warm-up", daemon=True
+        )
+        self._warm_up_thread.start()
+
+    def _run_warm_up(self) -> None:
+        def done(timing: GroupTiming) -> None:
+            with self._compiled_groups:
+                self._compiled_names.add(timing.name)
+                self._compiled_groups.notify_all()
+
+        report = warm_up(
             self.config.model,
             progress=lambda line: print(line, file=sys.stderr, flush=True),
+            on_done=done,
         )
+        with self._compiled_groups:
+            self.warm_up = report
+            self._compiled_groups.notify_all()
         if not report.cached:
             self.say(f"kernels compiled in {report.seconds:.1f} s (first run on this machine only)")
             for group in report.groups:
                 if not group.ok:
                     self.say(f"warning: {group.name} did not compile ahead: {group.error}")
+
+    def _wait_for_kernels(self, process: str) -> bool:
+        """Wait until the kernel groups ``process`` runs are compiled; False if stopped."""
+        needed = {g.name for g in KERNEL_GROUPS if process in g.processes}
+        with self._compiled_groups:
+            while self.warm_up is None and not needed <= self._compiled_names:
+                if self.stop.is_set():
+                    self.failure = "interrupted while compiling"
+                    return False
+                self._compiled_groups.wait(0.1)
+        return True
 
     def _wait_for_first_estimate(self) -> bool:
         """Wait for the service's first estimate; the run (and ``--duration``) starts there."""
@@ -788,6 +828,8 @@ class DemoSupervisor:
                 for child, waited in started:
                     if not self._wait_for_token(child, waited):
                         return False
+            if not self._wait_for_kernels(name):
+                return False
             argv = _python_module(module, *args, *self._connect_args())
             # the loops (short bursts, hard deadlines) preempt the service's estimation
             priority = config.rt_priority + (name != "service") if config.rt_priority else 0
@@ -811,6 +853,8 @@ class DemoSupervisor:
             return
         if not dashboard_available():
             self.say("dashboard: not started: web/__main__.py does not exist yet")
+            return
+        if not self._wait_for_kernels("dashboard"):
             return
         args = [
             "--device", config.slave, "--port", str(config.dashboard_port),

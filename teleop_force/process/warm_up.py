@@ -45,12 +45,14 @@ class KernelGroup:
         label: What it is, for progress lines ("the estimator's step").
         target: ``module:function`` that compiles the group, called with the model path
             (``None``: the shipped model).
+        processes: The demo's processes that run these kernels (they start once it is done).
 
     """
 
     name: str
     label: str
     target: str
+    processes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         """Check the target's form."""
@@ -70,21 +72,26 @@ class KernelGroup:
 #: The groups, largest first (the order they are started in).
 KERNEL_GROUPS: Final = (
     KernelGroup(
-        "estimator-step", "the estimator's step", "teleop_force.service.kernels:compile_step"
+        "estimator-step", "the estimator's step", "teleop_force.service.kernels:compile_step",
+        ("service",),
     ),
     KernelGroup(
-        "count-observer", "the count observer", "teleop_force.service.kernels:compile_observer"
+        "count-observer", "the count observer", "teleop_force.service.kernels:compile_observer",
+        ("service",),
     ),
     KernelGroup(
-        "residual-watch",
-        "the residual watch's estimator",
-        "teleop_force.service.kernels:compile_watch",
+        "residual-watch", "the residual watch's estimator",
+        "teleop_force.service.kernels:compile_watch", ("service",),
     ),
     KernelGroup(
-        "plants", "the master's and slave's plants", "master_slave.slave:compile_plant_kernels"
+        "plants", "the master's and slave's plants", "master_slave.slave:compile_plant_kernels",
+        ("slave", "master"),
     ),
-    KernelGroup("dashboard", "the dashboard's coverage map", "web.coverage_data:compile_kernels"),
-)
+    KernelGroup(
+        "dashboard", "the dashboard's coverage map", "web.coverage_data:compile_kernels",
+        ("dashboard",),
+    ),
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -179,13 +186,15 @@ def warm_up(
     jobs: int | None = None,
     progress: Callable[[str], None] | None = None,
     force: bool = False,
+    on_done: Callable[[GroupTiming], None] | None = None,
 ) -> WarmUpReport:
     """Compile every group in parallel child processes unless the stamp says they are cached.
 
     ``jobs``: processes at once (default: the CPUs this process may run on). ``progress`` is
     called with one line per group started and finished ("compiling the estimator's step,
-    first run only (1/5)"). A group that fails is reported, not raised: the process that
-    needs it then compiles it itself.
+    first run only (1/5)"), ``on_done`` with each group's timing as it ends (from a worker
+    thread). A group that fails is reported, not raised: the process that needs it then
+    compiles it itself.
     """
     started = time.perf_counter()
     if not force and is_warm(model_path):
@@ -214,6 +223,8 @@ def warm_up(
             counts["done"] += 1
             outcome = "compiled" if ok else f"failed ({timing.error}); its process will compile it"
             say(f"{group.label}: {outcome} in {seconds:.1f} s ({counts['done']}/{total})")
+        if on_done is not None:
+            on_done(timing)
         return timing
 
     with ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="warm-up") as pool:
