@@ -73,16 +73,21 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     offsets = defaults.offsets if args.offsets is None else args.offsets
     sticking = defaults.sticking_with(friction) if args.sticking is None else args.sticking
     count_observer = defaults.count_observer if args.count_observer is None else args.count_observer
-    model, report = identify_model(
-        recordings,
-        description,
-        friction,
-        wavelet=wavelet_options_for(args.wn_structure, args.wn_fit),
-        offsets=offsets,
-        sticking=sticking,
-        count_observer=count_observer,
-    )
-    if sticking:
+    options: dict[str, Any] = {
+        "wavelet": wavelet_options_for(args.wn_structure, args.wn_fit),
+        "offsets": offsets,
+        "sticking": sticking,
+        "count_observer": count_observer,
+    }
+    if args.guards:
+        from teleop_force.identification.guards import identify_guarded
+
+        model, report, guards = identify_guarded(recordings, description, friction, **options)
+        for line in guards.lines():
+            _log(line)
+    else:
+        model, report = identify_model(recordings, description, friction, **options)
+    if sticking and "sticking_rad" in report.details:
         _log(f"sticking transition angle: {report.details['sticking_rad']:.3g} rad (0: sgn kept)")
     if count_observer:
         counts = ", ".join(f"{c:.3g}" for c in model.filter_config.count_rad)
@@ -213,7 +218,16 @@ def _cmd_residual(args: argparse.Namespace) -> int:
         robot = args.robot or "omni"
         recordings = _load_recordings(args.data, robot=_reader_robot(robot))
         description = resolve_robot(robot, recordings[0].q_rad.shape[1])
-        report = trace_residual(recordings, description, options)
+        if args.effect_test:
+            from teleop_force.residual.acceptance import trace_residual_tested
+
+            report = trace_residual_tested(recordings, description, options)
+        else:
+            report = trace_residual(recordings, description, options)
+        for fallback in report.fallbacks:
+            _log(f"fallback: {fallback['friction']} refused ({fallback['cause']})")
+        if report.failed is not None:
+            _log(f"warning: even the simplest baseline failed: {report.failed}")
     if args.output:
         path = write_residual_report(report, Path(args.output), list(description.joint_names))
         _log(f"report written to {path}")
@@ -604,6 +618,15 @@ def _add_identify(subparsers: _Subparsers) -> None:
     )
     _add_wn_structure(p)
     _add_count_observer(p)
+    p.add_argument(
+        "--guards",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="check the fit on the last quarter of each recording first (default on): a fit"
+        " worse than predicting zero on a joint falls back to the next simpler friction, and"
+        " the wavelet network is kept only on joints where it beats the coupled CV there;"
+        " every fallback is printed",
+    )
     _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
@@ -672,6 +695,14 @@ def _add_residual(subparsers: _Subparsers) -> None:
         default=EffectPlacement.AUTO.value,
         help="where a found effect acts: on its motor joint, at the model joint (through the"
         " coupling), either (model joint if confirmed); auto: either with model-cv friction",
+    )
+    p.add_argument(
+        "--effect-test",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="search the first 2/3 of each recording and keep an effect only if it passes a"
+        " held-out sign-flip test on the last third, family-wise level 0.01 (not with"
+        " --model; default off)",
     )
     _add_json_flag(p)
     _add_output(p, "folder for the report (markdown, plots, model.json)")
