@@ -484,6 +484,22 @@ def _cmd_residual_blind(args: argparse.Namespace) -> int:
     return EXIT_OK if passed else 1
 
 
+def _cmd_generated_report(args: argparse.Namespace) -> int:
+    from teleop_force.reports.generated import parse_seeds, run_report
+    from teleop_force.simulation.generator_spec import reported_seeds
+
+    if (args.seeds is None) == (args.reported is None):
+        raise ConfigurationError("give either --seeds or --reported COMMIT")
+    seeds = parse_seeds(args.seeds) if args.seeds else reported_seeds(args.reported)
+    _log(f"seeds: {', '.join(str(s) for s in seeds)}")
+    results = run_report(seeds, Path(args.output), log=_log)
+    if args.json:
+        print(json.dumps({"seeds": results}))
+    else:
+        print((Path(args.output) / "report.md").read_text())
+    return EXIT_OK
+
+
 def _cmd_experiments(args: argparse.Namespace) -> int:
     from teleop_force.reports.experiments import ExperimentOptions, run_experiments
 
@@ -553,6 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_residual_blind(subparsers)
     _add_accuracy(subparsers)
     _add_teststand_heldout(subparsers)
+    _add_generated_report(subparsers)
     return parser
 
 
@@ -967,6 +984,21 @@ def _add_teststand_heldout(subparsers: _Subparsers) -> None:
     )  # fmt: skip
     _add_json_flag(p)
     p.set_defaults(run=_cmd_teststand_heldout)
+
+
+def _add_generated_report(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "generated-report",
+        help="the defaults on plants drawn by the generator (docs/plant_generator.md)",
+    )
+    p.add_argument("--seeds", default=None, help="plant seeds, e.g. 1-20 (the choice seeds)")
+    p.add_argument(
+        "--reported", default=None, metavar="COMMIT",
+        help="the 20 reported seeds of the commit that froze the last choice (full id)",
+    )  # fmt: skip
+    _add_output(p, "folder for seeds.jsonl and report.md (a rerun resumes)", required=True)
+    _add_json_flag(p)
+    p.set_defaults(run=_cmd_generated_report)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -7,7 +7,9 @@ check part:
 - **a failed fit is caught**: a model whose relative RMS on any joint exceeds 1 (worse than
   predicting zero) or is not finite, or whose fit raised, is reported with its cause
   (:class:`FitFailure`) and the next simpler friction is tried (:data:`SIMPLER`:
-  ``wn -> coupled-cv -> cv``, ``model-cv -> cv``). If none passes, :class:`ModelError`.
+  ``wn -> coupled-cv -> cv``, ``model-cv -> cv``). If none passes, the simplest is kept
+  and :attr:`GuardReport.failed` says why (``strict``: :class:`ModelError` instead): a
+  figure from it counts as a failure.
 - **the WN earns its joints**: with the default structure (the network added to the coupled
   CV), joint ``j`` keeps its network only if the model's check error on ``j`` is below the
   same model's with the network zeroed (its coupled CV); elsewhere the network is zeroed, so
@@ -79,6 +81,7 @@ class GuardReport:
     check_relative_rms: dict[str, tuple[float, ...]]
     wn_joints: tuple[bool, ...] | None = None
     cv_relative_rms: tuple[float, ...] | None = None
+    failed: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Return the report as JSON-ready values."""
@@ -89,11 +92,14 @@ class GuardReport:
             "check_relative_rms": {k: list(v) for k, v in self.check_relative_rms.items()},
             "wn_joints": None if self.wn_joints is None else list(self.wn_joints),
             "cv_relative_rms": None if self.cv_relative_rms is None else list(self.cv_relative_rms),
+            "failed": self.failed,
         }
 
     def lines(self) -> list[str]:
         """Return one line per fallback and one for the WN's joints (what ``identify`` logs)."""
         out = [f"fallback: {f.friction} refused ({f.cause})" for f in self.fallbacks]
+        if self.failed is not None:
+            out.append(f"warning: every friction failed the held-out check, kept {self.chosen}")
         if self.wn_joints is not None:
             kept = [j + 1 for j, keep in enumerate(self.wn_joints) if keep]
             out.append(
@@ -186,6 +192,7 @@ def identify_guarded(
     friction_kind: FrictionKind | str = FrictionKind.WN,
     *,
     held_out_fraction: float = HELD_OUT_FRACTION,
+    strict: bool = False,
     **identify_options: Any,
 ) -> tuple[DynamicModel, FitReport, GuardReport]:
     """Identify as :func:`identify_model` does, behind the guards (module docstring).
@@ -194,7 +201,9 @@ def identify_guarded(
     ``sticking``, ``count_observer``...).
 
     Raises:
-        ModelError: when every friction down to the simplest fails the check.
+        ModelError: with ``strict``, when every friction down to the simplest fails the
+            check (else the simplest is kept, :attr:`GuardReport.failed` set); without it,
+            when the simplest's fit raises.
 
     """
     requested = FrictionKind.parse(friction_kind)
@@ -203,14 +212,16 @@ def identify_guarded(
     )
     fallbacks: list[FitFailure] = []
     checks: dict[str, tuple[float, ...]] = {}
-    kind: FrictionKind | None = requested
+    kind: FrictionKind = requested
     inner: DynamicModel | None = None
-    while kind is not None:
+    failed: str | None = None
+    while True:
         options = _kwargs_for(kind, identify_options)
         try:
             inner, _ = identify_model(list(fit_parts), description, kind, **options)
             rms = np.asarray(evaluate_model(inner, list(check_parts))["relative_rms"])
         except (ModelError, DataError, np.linalg.LinAlgError) as error:
+            inner = None
             cause: str | None = f"the fit raised: {error}"
         else:
             checks[kind.value] = tuple(float(x) for x in rms)
@@ -218,10 +229,15 @@ def identify_guarded(
         if cause is None:
             break
         fallbacks.append(FitFailure(kind.value, cause))
-        kind = SIMPLER[kind]
-    if kind is None or inner is None:
-        causes = "; ".join(f"{f.friction}: {f.cause}" for f in fallbacks)
-        raise ModelError(f"every friction failed the held-out check: {causes}")
+        simpler = SIMPLER[kind]
+        if simpler is None:
+            failed = "; ".join(f"{f.friction}: {f.cause}" for f in fallbacks)
+            if strict or inner is None:
+                raise ModelError(f"every friction failed the held-out check: {failed}")
+            break
+        kind = simpler
+    if inner is None:  # pragma: no cover - the loop above leaves with a model or raises
+        raise ModelError("no model")
     wn_joints: tuple[bool, ...] | None = None
     cv_rms: tuple[float, ...] | None = None
     if kind is FrictionKind.WN and isinstance(inner.friction, WaveletNetwork):
@@ -241,6 +257,8 @@ def identify_guarded(
         zero_network_joints(model, [j for j, keep in enumerate(wn_joints) if not keep])
         training = evaluate_model(model, recordings)["relative_rms"]
         report = dataclasses.replace(report, friction_relative_rms=training)
-    guards = GuardReport(requested.value, kind.value, tuple(fallbacks), checks, wn_joints, cv_rms)
+    guards = GuardReport(
+        requested.value, kind.value, tuple(fallbacks), checks, wn_joints, cv_rms, failed
+    )
     report.details["guards"] = guards.to_dict()
     return model, report, guards

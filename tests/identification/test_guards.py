@@ -74,7 +74,7 @@ def test_a_failed_fit_falls_back_to_the_next_simpler_friction(
     assert any("fallback: wn refused" in line for line in guard.lines())
 
 
-def test_every_friction_failing_is_an_error(
+def test_every_friction_failing_is_reported_or_an_error(
     session_recording: Recording, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     def nothing_fits(model, recordings, blend=True):  # type: ignore[no-untyped-def]
@@ -82,4 +82,11 @@ def test_every_friction_failing_is_an_error(
 
     monkeypatch.setattr(guards, "evaluate_model", nothing_fits)
     with pytest.raises(ModelError, match=r"coupled-cv.*cv: joint 1"):
-        identify_guarded([session_recording], omni_description(), "coupled-cv")
+        identify_guarded([session_recording], omni_description(), "coupled-cv", strict=True)
+    model, report, guard = identify_guarded(
+        [session_recording], omni_description(), "coupled-cv"
+    )
+    assert guard.chosen == "cv" and model.friction.kind == "cv"
+    assert guard.failed is not None and "cv: joint 1: check error not finite" in guard.failed
+    assert report.details["guards"]["failed"] == guard.failed
+    assert guard.lines()[-1].startswith("warning: every friction failed")
