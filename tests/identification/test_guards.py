@@ -83,9 +83,7 @@ def test_every_friction_failing_is_reported_or_an_error(
     monkeypatch.setattr(guards, "evaluate_model", nothing_fits)
     with pytest.raises(ModelError, match=r"coupled-cv.*cv: joint 1"):
         identify_guarded([session_recording], omni_description(), "coupled-cv", strict=True)
-    model, report, guard = identify_guarded(
-        [session_recording], omni_description(), "coupled-cv"
-    )
+    model, report, guard = identify_guarded([session_recording], omni_description(), "coupled-cv")
     assert guard.chosen == "cv" and model.friction.kind == "cv"
     assert guard.failed is not None and "cv: joint 1: check error not finite" in guard.failed
     assert report.details["guards"]["failed"] == guard.failed
