@@ -458,7 +458,7 @@ def _publish(args: argparse.Namespace) -> int:
 def _cmd_teststand_heldout(args: argparse.Namespace) -> int:
     from teleop_force.reports.teststand_heldout import held_out_study
 
-    report = held_out_study(args.folder, args.train_fraction, args.torques)
+    report = held_out_study(args.folder, args.train_fraction, args.torques, reverse=args.reverse)
     if args.json:
         print(json.dumps(report.to_json()))
     else:
@@ -981,6 +981,10 @@ def _add_teststand_heldout(subparsers: _Subparsers) -> None:
     p.add_argument(
         "--torques", choices=("target", "measured"), default=None,
         help="torque source (default: target when its file is there, else measured)",
+    )  # fmt: skip
+    p.add_argument(
+        "--reverse", action="store_true",
+        help="identify on the last fraction instead and score on the first samples",
     )  # fmt: skip
     _add_json_flag(p)
     p.set_defaults(run=_cmd_teststand_heldout)
