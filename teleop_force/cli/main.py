@@ -73,16 +73,21 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     offsets = defaults.offsets if args.offsets is None else args.offsets
     sticking = defaults.sticking_with(friction) if args.sticking is None else args.sticking
     count_observer = defaults.count_observer if args.count_observer is None else args.count_observer
-    model, report = identify_model(
-        recordings,
-        description,
-        friction,
-        wavelet=wavelet_options_for(args.wn_structure, args.wn_fit),
-        offsets=offsets,
-        sticking=sticking,
-        count_observer=count_observer,
-    )
-    if sticking:
+    options: dict[str, Any] = {
+        "wavelet": wavelet_options_for(args.wn_structure, args.wn_fit),
+        "offsets": offsets,
+        "sticking": sticking,
+        "count_observer": count_observer,
+    }
+    if args.guards:
+        from teleop_force.identification.guards import identify_guarded
+
+        model, report, guards = identify_guarded(recordings, description, friction, **options)
+        for line in guards.lines():
+            _log(line)
+    else:
+        model, report = identify_model(recordings, description, friction, **options)
+    if sticking and "sticking_rad" in report.details:
         _log(f"sticking transition angle: {report.details['sticking_rad']:.3g} rad (0: sgn kept)")
     if count_observer:
         counts = ", ".join(f"{c:.3g}" for c in model.filter_config.count_rad)
@@ -213,7 +218,16 @@ def _cmd_residual(args: argparse.Namespace) -> int:
         robot = args.robot or "omni"
         recordings = _load_recordings(args.data, robot=_reader_robot(robot))
         description = resolve_robot(robot, recordings[0].q_rad.shape[1])
-        report = trace_residual(recordings, description, options)
+        if args.effect_test:
+            from teleop_force.residual.acceptance import trace_residual_tested
+
+            report = trace_residual_tested(recordings, description, options)
+        else:
+            report = trace_residual(recordings, description, options)
+        for fallback in report.fallbacks:
+            _log(f"fallback: {fallback['friction']} refused ({fallback['cause']})")
+        if report.failed is not None:
+            _log(f"warning: even the simplest baseline failed: {report.failed}")
     if args.output:
         path = write_residual_report(report, Path(args.output), list(description.joint_names))
         _log(f"report written to {path}")
@@ -445,7 +459,7 @@ def _publish(args: argparse.Namespace) -> int:
 def _cmd_teststand_heldout(args: argparse.Namespace) -> int:
     from teleop_force.reports.teststand_heldout import held_out_study
 
-    report = held_out_study(args.folder, args.train_fraction, args.torques)
+    report = held_out_study(args.folder, args.train_fraction, args.torques, reverse=args.reverse)
     if args.json:
         print(json.dumps(report.to_json()))
     else:
@@ -469,6 +483,22 @@ def _cmd_residual_blind(args: argparse.Namespace) -> int:
     print(path.read_text())
     passed = all(c.passed for c in cases) and all(p.passed for p in payloads)
     return EXIT_OK if passed else 1
+
+
+def _cmd_generated_report(args: argparse.Namespace) -> int:
+    from teleop_force.reports.generated import parse_seeds, run_report
+    from teleop_force.simulation.generator_spec import reported_seeds
+
+    if (args.seeds is None) == (args.reported is None):
+        raise ConfigurationError("give either --seeds or --reported COMMIT")
+    seeds = parse_seeds(args.seeds) if args.seeds else reported_seeds(args.reported)
+    _log(f"seeds: {', '.join(str(s) for s in seeds)}")
+    results = run_report(seeds, Path(args.output), log=_log)
+    if args.json:
+        print(json.dumps({"seeds": results}))
+    else:
+        print((Path(args.output) / "report.md").read_text())
+    return EXIT_OK
 
 
 def _cmd_experiments(args: argparse.Namespace) -> int:
@@ -540,6 +570,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_residual_blind(subparsers)
     _add_accuracy(subparsers)
     _add_teststand_heldout(subparsers)
+    _add_generated_report(subparsers)
     return parser
 
 
@@ -605,6 +636,15 @@ def _add_identify(subparsers: _Subparsers) -> None:
     )
     _add_wn_structure(p)
     _add_count_observer(p)
+    p.add_argument(
+        "--guards",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="check the fit on the last quarter of each recording first (default on): a fit"
+        " worse than predicting zero on a joint falls back to the next simpler friction, and"
+        " the wavelet network is kept only on joints where it beats the coupled CV there;"
+        " every fallback is printed",
+    )
     _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
@@ -673,6 +713,14 @@ def _add_residual(subparsers: _Subparsers) -> None:
         default=EffectPlacement.AUTO.value,
         help="where a found effect acts: on its motor joint, at the model joint (through the"
         " coupling), either (model joint if confirmed); auto: either with model-cv friction",
+    )
+    p.add_argument(
+        "--effect-test",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="search the first 2/3 of each recording and keep an effect only if it passes a"
+        " held-out sign-flip test on the last third, family-wise level 0.01 (not with"
+        " --model; default off)",
     )
     _add_json_flag(p)
     _add_output(p, "folder for the report (markdown, plots, model.json)")
@@ -940,8 +988,27 @@ def _add_teststand_heldout(subparsers: _Subparsers) -> None:
         "--torques", choices=("target", "measured"), default=None,
         help="torque source (default: target when its file is there, else measured)",
     )  # fmt: skip
+    p.add_argument(
+        "--reverse", action="store_true",
+        help="identify on the last fraction instead and score on the first samples",
+    )  # fmt: skip
     _add_json_flag(p)
     p.set_defaults(run=_cmd_teststand_heldout)
+
+
+def _add_generated_report(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "generated-report",
+        help="the defaults on plants drawn by the generator (docs/plant_generator.md)",
+    )
+    p.add_argument("--seeds", default=None, help="plant seeds, e.g. 1-20 (the choice seeds)")
+    p.add_argument(
+        "--reported", default=None, metavar="COMMIT",
+        help="the 20 reported seeds of the commit that froze the last choice (full id)",
+    )  # fmt: skip
+    _add_output(p, "folder for seeds.jsonl and report.md (a rerun resumes)", required=True)
+    _add_json_flag(p)
+    p.set_defaults(run=_cmd_generated_report)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -138,10 +138,11 @@ class HeldOutReport:
 
     def lines(self) -> list[str]:
         """Return the report as text lines."""
+        fit, held = ("last", "first") if self.options.get("reverse") else ("first", "last")
         out = [
-            f"{self.source} ({self.torque_source} torques): identified on the first "
+            f"{self.source} ({self.torque_source} torques): identified on the {fit} "
             f"{self.train_samples} samples ({self.free_samples} without contact), "
-            f"held out: the last {self.test_samples} "
+            f"held out: the {held} {self.test_samples} "
             f"({self.standstill_samples} at standstill); RMS f_z {self.rms_truth_fz_n:.2f} N",
             "held out, f_z [N]       rms   lag   bias  spread  standstill  moving",
         ]
@@ -172,9 +173,9 @@ class HeldOutReport:
             )
         verdict = "met" if self.goal_met else "NOT met"
         out.append(f"identified / URDF = {self.ratio:.2f} (goal <= {GOAL_RATIO:.2f}: {verdict})")
-        first = self.first_part_contact_n
+        first = self.first_part_contact_n  # the identification's part, in either direction
         out.append(
-            "first part, samples in contact (in no fit, not held out): "
+            f"{fit} part, samples in contact (in no fit, not held out): "
             + ", ".join(f"{_ROW_NAMES[name]} {value:.3f} N" for name, value in first.items())
         )
         out.append(
@@ -189,8 +190,13 @@ def held_out_study(
     train_fraction: float = 2.0 / 3.0,
     torque_source: str | None = None,
     options: TeststandOptions | None = None,
+    reverse: bool = False,
 ) -> HeldOutReport:
-    """Identify on the first ``train_fraction`` of the log, score on the rest (module doc)."""
+    """Identify on the first ``train_fraction`` of the log, score on the rest (module doc).
+
+    ``reverse``: identify on the last ``train_fraction``, score on the first samples (the
+    check in the other direction).
+    """
     if not 0.0 < train_fraction < 1.0:
         raise ConfigurationError(f"train_fraction must be in (0, 1), got {train_fraction}")
     options = options or TeststandOptions(sticking=True)
@@ -209,7 +215,7 @@ def held_out_study(
             f"{n} samples cannot be split at {train_fraction:.2f}", path=recording.source
         )
     description = teststand_description()
-    head = _head(recording, cut)
+    head = _tail(recording, n - cut) if reverse else _head(recording, cut)
     identified = identify_teststand(head, description, options)
     nominal = nominal_teststand_model(description, options)
     ours = estimate_forces(identified, recording, description)
@@ -238,7 +244,7 @@ def held_out_study(
     qd = filter_signals(
         recording.t_s, recording.q_rad, recording.tau_nm, None, None, config
     ).qd_rad_s
-    test = np.arange(n) >= cut
+    test = np.arange(n) < n - cut if reverse else np.arange(n) >= cut
     still = np.all(np.abs(qd) < STANDSTILL_RAD_S, axis=1)
     free = free_phase_mask(recording, options.free_force_n, 0.0)
     sets = _SampleSets(test, test & still, test & ~still, test & free)
@@ -287,6 +293,7 @@ def held_out_study(
             "free_force_n": options.free_force_n,
             "guard_s": options.guard_s,
             "train_fraction": train_fraction,
+            "reverse": reverse,
         },
     )
 
@@ -309,6 +316,18 @@ def _head(recording: Recording, cut: int) -> Recording:
         recording.q_rad[:cut],
         recording.tau_nm[:cut],
         None if force is None else force[:cut],
+        source=recording.source,
+    )
+
+
+def _tail(recording: Recording, start: int) -> Recording:
+    """Return the samples of ``recording`` from ``start`` on."""
+    force = recording.f_tip_in_base_n
+    return Recording(
+        recording.t_s[start:],
+        recording.q_rad[start:],
+        recording.tau_nm[start:],
+        None if force is None else force[start:],
         source=recording.source,
     )
 

@@ -41,6 +41,7 @@ from threadpoolctl import threadpool_limits
 from teleop_force.friction.kinds import FrictionKind
 from teleop_force.identification.effects import BasisSpec, variable_values
 from teleop_force.identification.filtered_regressor import FilterConfig
+from teleop_force.identification.guards import SIMPLER, FitFailure, fit_failure
 from teleop_force.io.interchange_csv import Recording
 from teleop_force.residual.candidates import (
     candidate_effects,
@@ -206,16 +207,41 @@ def trace_residual(
     config: FilterConfig | None = None,
 ) -> ResidualReport:
     """Fit, find what the model lacks on held-out data, add it, refit, report before and after."""
+    return traced_with_baseline(recordings, description, options, config)[0]
+
+
+def traced_with_baseline(
+    recordings: Sequence[Recording],
+    description: RobotDescription,
+    options: ResidualOptions | None = None,
+    config: FilterConfig | None = None,
+) -> tuple[ResidualReport, Baseline]:
+    """:func:`trace_residual`, and the baseline the residual was taken from.
+
+    A failed baseline (held-out error above 100 % or not finite on a joint, the loop's own
+    blocks: :func:`~teleop_force.identification.guards.fit_failure`) is refused and the
+    next simpler friction fitted (``wn -> coupled-cv -> cv``); the report lists every
+    fallback, and names the cause in ``failed`` if even the simplest fails.
+    """
     options = (options or ResidualOptions()).for_robot(description.name, description.has_rigid_body)
     config = config or FilterConfig()
     offsets = bool(options.offsets)
-    friction = options.friction or FrictionKind.WN
-    baseline = fit_baseline(recordings, description, friction, offsets, config)
-    samples = select_samples(baseline.prepared, options, baseline.rigid_values)
-    scorers = _scorers(samples, baseline, description, options)
+    kind: FrictionKind = options.friction or FrictionKind.WN
+    fallbacks: list[FitFailure] = []
+    while True:
+        baseline = fit_baseline(recordings, description, kind, offsets, config)
+        samples = select_samples(baseline.prepared, options, baseline.rigid_values)
+        scorers = _scorers(samples, baseline, description, options)
+        before = np.array([d.relative_rms(d.held_out_errors()) for d in scorers.designs])
+        cause = fit_failure(before)
+        simpler = SIMPLER[kind]
+        if cause is None or simpler is None:
+            break
+        fallbacks.append(FitFailure(kind.value, cause))
+        kind = simpler
     search = _search(samples, scorers, options, offsets)
     model = fitted_model(baseline, description, config, search.accepted, options.ridge)
-    return ResidualReport(
+    report = ResidualReport(
         before=search.before,
         after=search.after,
         effects=search.accepted,
@@ -224,7 +250,11 @@ def trace_residual(
         history=search.history,
         effect_plots=search.plots,
         rejected=search.rejected,
+        friction=kind.value,
+        fallbacks=tuple(f.to_dict() for f in fallbacks),
+        failed=None if cause is None else f"{kind.value}: {cause}",
     )
+    return report, baseline
 
 
 def _scorers(

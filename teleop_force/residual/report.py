@@ -112,6 +112,18 @@ class ResidualReport:
     payload: TracedPayload | None = None
     #: The model file the residual was taken against (None: the model was fitted here).
     baseline_model: str | None = None
+    #: The baseline's friction (after any fallback; None: a model in hand).
+    friction: str | None = None
+    #: Every baseline refused as a failed fit: ``friction``, ``cause``.
+    fallbacks: tuple[dict[str, str], ...] = ()
+    #: Why even the simplest baseline failed (None: it did not).
+    failed: str | None = None
+    #: The held-out test of each effect the search accepted
+    #: (:mod:`~teleop_force.residual.acceptance`; empty: not tested).
+    tested: tuple[dict[str, Any], ...] = ()
+    #: Relative RMS per joint on the test part, before and after the tested effects.
+    test_before: np.ndarray | None = None
+    test_after: np.ndarray | None = None
 
     def effects_json(self) -> list[dict[str, Any]]:
         """Return the JSON ``effects``: the payload first, then the other effects in order."""
@@ -127,6 +139,15 @@ class ResidualReport:
             "samples": self.samples,
             "held_out": "blocked cross-validation over contiguous time blocks",
         }
+        if self.friction is not None:
+            out["friction"] = self.friction
+            out["fallbacks"] = [dict(f) for f in self.fallbacks]
+            out["failed"] = self.failed
+        if self.tested:
+            out["tested"] = [dict(t) for t in self.tested]
+        if self.test_before is not None and self.test_after is not None:
+            out["test_before"] = [float(x) for x in self.test_before]
+            out["test_after"] = [float(x) for x in self.test_after]
         if self.baseline_model is not None:
             out["baseline_model"] = self.baseline_model
             out["held_out"] = (

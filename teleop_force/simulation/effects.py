@@ -572,6 +572,14 @@ _REGISTRY: Mapping[str, tuple[EffectFactory, int, float]] = MappingProxyType(
 EFFECT_NAMES: tuple[str, ...] = tuple(_REGISTRY)
 
 
+def default_strength(name: str) -> float:
+    """Return the main parameter :func:`make_effect` gives ``name`` by default."""
+    entry = _REGISTRY.get(name)
+    if entry is None:
+        raise ConfigurationError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    return entry[2]
+
+
 def make_effect(name: str, joint: int | None = None, strength: float | None = None) -> PlantEffect:
     """Build the effect ``name`` on ``joint`` (0-based) with main parameter ``strength``.
 

@@ -99,6 +99,33 @@ _CONSTANTS_SIZE = 17
 _NO_CONTACT, _PLANE, _FLOOR = 0, 1, 2
 
 
+@dataclass(frozen=True)
+class DrawnArm:
+    """An arm given instead of drawn from ``instance_seed`` (the plant generator's draws).
+
+    Attributes:
+        inertia_seed: Seeds the inertia perturbation (``perturbed_omni_description``).
+        spread: Its relative spread.
+        friction: The true friction (any LuGre parameters: every drawn law is one).
+        spring_scale: The spring stiffness relative to the Omni's.
+
+    """
+
+    inertia_seed: int
+    spread: float
+    friction: LuGreFriction
+    spring_scale: float
+
+    def __post_init__(self) -> None:
+        seed = self.inertia_seed
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ConfigurationError(f"inertia_seed must be an integer >= 0, got {seed!r}")
+        if not 0.0 <= self.spread < 1.0:
+            raise ConfigurationError(f"spread must be in [0, 1), got {self.spread}")
+        if not (math.isfinite(self.spring_scale) and self.spring_scale > 0.0):
+            raise ConfigurationError(f"spring_scale must be > 0, got {self.spring_scale}")
+
+
 def _triple(name: str, value: ArrayLike) -> tuple[float, float, float]:
     values = np.broadcast_to(np.asarray(value, dtype=float), (3,))
     if not (np.all(np.isfinite(values)) and np.all(values >= 0.0)):
@@ -125,6 +152,8 @@ class PlantTwoConfig:
         tip_mass_kg: Payload at the tip (:mod:`~teleop_force.simulation.payload`).
         gravity: Whether gravity acts.
         friction: Whether the LuGre friction acts.
+        drawn_arm: An arm given whole (inertias, friction, spring) instead of the one of
+            ``instance_seed`` (``None``: the family's own).
 
     """
 
@@ -142,6 +171,7 @@ class PlantTwoConfig:
     tip_mass_kg: float = 0.0
     gravity: bool = True
     friction: bool = True
+    drawn_arm: DrawnArm | None = None
 
     def __post_init__(self) -> None:
         seed = self.instance_seed
@@ -188,8 +218,17 @@ class PlantTwoConfig:
         """Return the instance: ``(description with payload, true friction or None, spring k)``.
 
         Deterministic in :attr:`instance_seed` and :attr:`spread` (independent of the other
-        settings: switching friction off keeps the same masses).
+        settings: switching friction off keeps the same masses). A :attr:`drawn_arm` is used
+        as given.
         """
+        drawn = self.drawn_arm
+        if drawn is not None:
+            rng = np.random.default_rng(np.random.SeedSequence([3, int(drawn.inertia_seed)]))
+            description = with_tip_payload(
+                perturbed_omni_description(rng, drawn.spread), self.tip_mass_kg
+            )
+            stiffness = omni.SPRING_STIFFNESS_NM_PER_RAD * drawn.spring_scale
+            return description, (drawn.friction if self.friction else None), stiffness
         rng = np.random.default_rng(np.random.SeedSequence([2, int(self.instance_seed)]))
         description = perturbed_omni_description(rng, self.spread)
         friction = LuGreFriction().perturbed(rng, self.spread)

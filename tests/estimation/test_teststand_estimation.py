@@ -191,3 +191,15 @@ def test_the_stand_takes_no_count_observer(tmp_path: Path, capsys) -> None:
                  str(model)]) == 2  # fmt: skip
     assert "count-observer" in capsys.readouterr().err
     assert not model.exists()
+
+
+def test_the_reverse_direction_identifies_on_the_last_part() -> None:
+    report = held_out_study(require("teststand"), reverse=True)
+    assert report.train_samples + report.test_samples == 2991
+    assert report.test_samples == 997 and report.options["reverse"] is True
+    text = "\n".join(report.lines())
+    assert "identified on the last 1994 samples" in text and "held out: the first 997" in text
+    # another part is held out: not the forward direction's figures
+    forward = held_out_study(require("teststand"))
+    assert report.rms_truth_fz_n != pytest.approx(forward.rms_truth_fz_n)
+    assert report.ours.rms_n < report.urdf.rms_n
