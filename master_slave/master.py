@@ -219,7 +219,6 @@ class MasterProcess:
         )
         self.hand = PID(PIDGains.omni(), n_joints=3, control_period_s=config.loop.period_s)
         self.hand.reset(integral_nm=self.plant.holding_torque_nm())
-        self._warm_up()
         self.loop = RateLoop(config.loop)
         self.feedback = FeedbackInbox()
         self.published = 0
@@ -241,27 +240,6 @@ class MasterProcess:
             "waited_for_subscriber_s": round(self.waited_for_subscriber_s, 3),
             "feedback": self.feedback.stats(),
         }
-
-    def _warm_up(self) -> None:
-        """Run the loop's plant and PID kernels on copies, so they are compiled before the token.
-
-        The same calls on the same types as the loop, on a throwaway plant and hand.
-        """
-        plant = SimulatedOmni(
-            PlantConfig(
-                control_period_s=self.config.loop.period_s,
-                substeps=self.config.substeps,
-                torque_limit_nm=HAND_PLUS_MOTOR_LIMIT_NM,
-            ),
-            q0_rad=self.plant.q_true_rad,
-        )
-        hand = PID(PIDGains.omni(), n_joints=3, control_period_s=self.config.loop.period_s)
-        for k in range(3):
-            q = plant.read().q_rad
-            q_hand, qd_hand = self.operator.reference(k)
-            plant.command_torque(hand.update(q_hand, q, qd_hand))
-            plant.step()
-        plant.close()
 
     def run(self) -> dict[str, Any]:
         """Open Zenoh, run the loop until stopped, clean up; return the final stats."""

@@ -357,7 +357,6 @@ class SlaveProcess:
         self.pid = PID(PIDGains.omni(), n_joints=3, control_period_s=config.loop.period_s)
         self.pid.reset(integral_nm=self.plant.holding_torque_nm())
         self.loop = RateLoop(config.loop)
-        self._warm_up()
         self.safety = SafetyMonitor(config.safety)
         self.inbox = SetpointInbox()
         self.presence = MasterPresence()
@@ -398,24 +397,6 @@ class SlaveProcess:
         }
 
     # -- main loop ----------------------------------------------------------------------------
-
-    def _warm_up(self) -> None:
-        """Run the loop's plant and PID kernels on copies, so they are compiled before the token.
-
-        The same calls on the same types as :meth:`_loop` (read-only angles from the reading, a
-        fresh array of references), on a throwaway plant: the real one is untouched.
-        """
-        plant = SimulatedOmni(
-            PlantConfig(control_period_s=self.config.loop.period_s),
-            contact=self.plant.contact,
-            q0_rad=self.plant.q_true_rad,
-        )
-        pid = PID(PIDGains.omni(), n_joints=3, control_period_s=self.config.loop.period_s)
-        for _ in range(3):
-            q = plant.read().q_rad
-            plant.command_torque(pid.update(np.array(q.tolist()), q))
-            plant.step()
-        plant.close()
 
     def run(self) -> dict[str, Any]:
         """Open Zenoh, run the control loop until stopped, clean up; return the final stats."""
@@ -625,7 +606,8 @@ def build_parser() -> argparse.ArgumentParser:
 def compile_plant_kernels(model_path: Path | None = None) -> None:
     """Compile (or load) the slave's and master's kernels here (``teleop_force.process.warm_up``).
 
-    One process for both: their plants share most kernels, compiled once.
+    Building them is enough: their plant and PID compile their kernels as they are built. One
+    process for both: the plants share most kernels, compiled once.
     """
     from master_slave.master import MasterConfig, MasterProcess
 

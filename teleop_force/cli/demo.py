@@ -580,7 +580,7 @@ class DemoSupervisor:
         self._own_cpu_at_run = 0.0
         self._load_at_run: list[float] | None = None
         self._scheduling: dict[str, dict[str, Any] | None] = {}
-        self.warm_up: WarmUpReport | None = None
+        self.warm_up_report: WarmUpReport | None = None
         self._warm_up_thread: threading.Thread | None = None
         #: Kernel groups compiled so far, under their condition (the warm-up's thread sets it).
         self._compiled_groups = threading.Condition()
@@ -665,7 +665,7 @@ class DemoSupervisor:
         it runs are compiled (:meth:`_wait_for_kernels`), and then only loads them.
         """
         if is_warm(self.config.model):
-            self.warm_up = WarmUpReport(cached=True, seconds=0.0)
+            self.warm_up_report = WarmUpReport(cached=True, seconds=0.0)
             return
         self._warm_up_thread = threading.Thread(
             target=self._run_warm_up, name="warm-up", daemon=True
@@ -684,7 +684,7 @@ class DemoSupervisor:
             on_done=done,
         )
         with self._compiled_groups:
-            self.warm_up = report
+            self.warm_up_report = report
             self._compiled_groups.notify_all()
         if not report.cached:
             self.say(f"kernels compiled in {report.seconds:.1f} s (first run on this machine only)")
@@ -696,7 +696,7 @@ class DemoSupervisor:
         """Wait until the kernel groups ``process`` runs are compiled; False if stopped."""
         needed = {g.name for g in KERNEL_GROUPS if process in g.processes}
         with self._compiled_groups:
-            while self.warm_up is None and not needed <= self._compiled_names:
+            while self.warm_up_report is None and not needed <= self._compiled_names:
                 if self.stop.is_set():
                     self.failure = "interrupted while compiling"
                     return False
@@ -1020,7 +1020,7 @@ class DemoSupervisor:
                 None if self.first_estimate_s is None else round(self.first_estimate_s, 3)
             ),
             "up_after_s": self._up_after_s(),
-            "warm_up": None if self.warm_up is None else self.warm_up.summary(),
+            "warm_up": None if self.warm_up_report is None else self.warm_up_report.summary(),
             "estimate_coverage": coverage,
             "recording": str(self.recording),
             "log": str(self.log_path),
