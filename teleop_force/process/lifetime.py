@@ -36,12 +36,23 @@ def use_realtime_switch_interval() -> None:
     sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
 
+#: How often :meth:`StopSignal.wait` looks at the flag a signal handler set [s].
+SIGNAL_POLL_PERIOD_S = 0.02
+
+
 class StopSignal:
-    """A stop flag set by SIGINT / SIGTERM (once installed) or by :meth:`set`."""
+    """A stop flag set by SIGINT / SIGTERM (once installed) or by :meth:`set`.
+
+    The signal handler takes no lock: it only assigns a flag, which :meth:`wait` and
+    :meth:`is_set` read (a handler that set a ``threading.Event`` could run while the main
+    thread holds that event's lock inside ``wait`` and deadlock: the process would then
+    ignore every later signal).
+    """
 
     def __init__(self) -> None:
         """Create the flag, not set."""
         self._event = threading.Event()
+        self._signalled = False
         self.signal_name: str | None = None
 
     def install(self) -> StopSignal:
@@ -64,7 +75,7 @@ class StopSignal:
         supervisor = int(value)
 
         def watch() -> None:
-            while not self._event.wait(ORPHAN_CHECK_PERIOD_S):
+            while not self.wait(ORPHAN_CHECK_PERIOD_S):
                 if os.getppid() != supervisor:
                     self.signal_name = "supervisor gone"
                     self._event.set()
@@ -73,8 +84,9 @@ class StopSignal:
         return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
+        # No lock here (class docstring): a plain assignment is safe in a signal handler.
         self.signal_name = signal.Signals(signum).name
-        self._event.set()
+        self._signalled = True
 
     def set(self) -> None:
         """Ask the process to stop."""
@@ -82,11 +94,24 @@ class StopSignal:
 
     def is_set(self) -> bool:
         """Whether a stop was asked for."""
-        return self._event.is_set()
+        return self._signalled or self._event.is_set()
 
     def wait(self, timeout_s: float | None = None) -> bool:
-        """Sleep until a stop is asked for or ``timeout_s`` passes; return whether it was."""
-        return self._event.wait(timeout_s)
+        """Sleep until a stop is asked for or ``timeout_s`` passes; return whether it was.
+
+        A signal is seen within :data:`SIGNAL_POLL_PERIOD_S`; :meth:`set` at once.
+        """
+        deadline = None if timeout_s is None else time.monotonic() + max(0.0, timeout_s)
+        while not self.is_set():
+            step = SIGNAL_POLL_PERIOD_S
+            if deadline is not None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    return False
+                step = min(step, remaining)
+            if self._event.wait(step):
+                return True
+        return True
 
 
 def write_json(path: str | Path, payload: Any) -> None:
