@@ -178,11 +178,11 @@ def subscribe(
             (topics.ESTIMATE_DIAGNOSTICS, joiner.on_diagnostics),
         )
         out = []
-        for half, handle in halves:
+        for half, take in halves:
             name = topics.topic_name(device, half)
             out.append(
                 node.subscription(
-                    name, half.ros_type, _guarded(name, handle, on_malformed), direct=direct
+                    name, half.ros_type, _guarded(name, take, on_malformed), direct=direct
                 )
             )
         return out
