@@ -7,15 +7,15 @@ is a stiff PID impedance on the master's joints, whose torque the plant receives
 with the master's own motor torque. Every 1 ms tick::
 
     read the master (measured q), stamped with the wall time of the reading
-    publish JointSetpoint(q) on omni/<master>/setpoint_js     (what the slave follows)
+    publish the pose q on /<master>/setpoint_js (a JointState)   (what the slave follows)
     hand torque toward the script; haptic feedback torque J(q)^T (-scale F_est) if enabled
     publish JointState (q, qd, effort = the master's motor torque = the feedback)
     step the plant
 
 Haptic feedback (``--haptic-feedback``): the estimated force of the slave's tip on the tissue
-``F`` (``omni/<slave>/estimated_cf``) is displayed to the operator as ``-scale F``, clipped to
-the Omni's 3.3 N and to the motor torque limit; it is switched off when the estimate is older
-than 50 ms or not a number.
+``F`` (``/<slave>/estimated_cf``, a WrenchStamped) is displayed to the operator as
+``-scale F``, clipped to the Omni's 3.3 N and to the motor torque limit; it is switched off
+when the estimate is older than 50 ms or not a number.
 
 Run: ``python -m master_slave.master --device master --connect tcp/...``.
 """
@@ -29,7 +29,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -47,6 +47,7 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.ros2_outputs import Ros2Outputs
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
     StopSignal,
@@ -56,27 +57,21 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
+from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.topics import SETPOINT_JS
 from teleop_force.simulation import PID, PIDGains, PlantConfig, SimulatedOmni
 from teleop_force.transport import keys
-from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
-    declare_data_publisher,
     declare_json_queryable,
     declare_liveliness_subscriber,
-    declare_subscriber,
     declare_token,
-    put,
     undeclare_all,
     wait_for_subscribers,
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
-
-if TYPE_CHECKING:
-    from master_slave.ros2_outputs import Ros2Outputs
-    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "master"
 #: Joints of the Omni: an estimate for another count is malformed.
@@ -137,21 +132,8 @@ class FeedbackInbox:
         self.seqs = SequenceTracker()
         self.latency = LatencyHistogram()
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh callback: keep the newest estimate."""
-        arrival_ns = time.time_ns()
-        try:
-            seq, t_ns, _source_seq, f_n = m.unpack_force_estimate(sample.payload.to_bytes(), JOINTS)
-        except MessageError:
-            with self._lock:
-                self.malformed += 1
-            return
-        self._keep(seq, t_ns, f_n, arrival_ns)
-
-    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
-        """rmw_zenoh callback (``--ros2``): a WrenchStamped; seq and latency from the attachment."""
-        from teleop_force.ros2 import codec
-
+    def on_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback: a WrenchStamped; seq and latency from the attachment."""
         arrival_ns = time.time_ns()
         try:
             f_n = codec.decode_wrench(payload).force_n
@@ -247,29 +229,15 @@ class MasterProcess:
         session = open_session(self.options)
         entities: list[Any] = []
         try:
-            sp_pub = declare_data_publisher(session, keys.setpoint_js(config.device))
-            js_pub = declare_data_publisher(session, keys.measured_js(config.device))
-            entities += [sp_pub, js_pub]
-            if config.run.ros2:
-                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
-
-                self._ros2 = Ros2Outputs(
-                    session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
-                )
-            if config.haptic_feedback and self._ros2 is not None:
-                self._ros2.node.subscription(
+            ros2 = self._ros2 = Ros2Outputs(
+                session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
+            )
+            if config.haptic_feedback:
+                ros2.node.subscription(
                     ros2_topics.topic_name(config.slave, ros2_topics.ESTIMATED_CF),
                     ros2_topics.ESTIMATED_CF.ros_type,
-                    self.feedback.on_ros2_sample,
-                    direct=True,
-                )
-            elif config.haptic_feedback:
-                entities.append(
-                    declare_subscriber(
-                        session,
-                        keys.estimated_cf(config.slave),
-                        zenoh.handlers.Callback(self.feedback.on_sample, indirect=False),
-                    )
+                    self.feedback.on_sample,
+                    direct=True,  # on Zenoh's receive thread: no hand-over per sample
                 )
             entities.append(
                 declare_json_queryable(session, keys.process_stats(config.device, ROLE), self.stats)
@@ -291,7 +259,7 @@ class MasterProcess:
                 )
                 started = time.perf_counter()
                 matched = wait_for_subscribers(
-                    sp_pub if self._ros2 is None else self._ros2.zenoh_publisher(SETPOINT_JS),
+                    ros2.zenoh_publisher(SETPOINT_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=slave_seen.is_set,
@@ -303,21 +271,20 @@ class MasterProcess:
                 ROLE,
                 f"{config.device} running at {config.loop.rate_hz:g} Hz ({config.operator.motion})",
             )
-            self._control_loop(sp_pub, js_pub)
+            self._control_loop(ros2)
         finally:
-            ros2, self._ros2 = self._ros2, None
-            if ros2 is not None:
-                ros2.close()
+            outputs, self._ros2 = self._ros2, None
+            if outputs is not None:
+                outputs.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
         return self.stats()
 
-    def _control_loop(self, sp_pub: zenoh.Publisher, js_pub: zenoh.Publisher) -> None:
+    def _control_loop(self, ros2: Ros2Outputs) -> None:
         config = self.config
         plant, hand, loop, operator = self.plant, self.hand, self.loop, self.operator
         put_time, stop, feedback = self.put_time, self.stop, self.feedback
-        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -332,16 +299,12 @@ class MasterProcess:
             k = loop.wait()
             if n_ticks is not None and k >= n_ticks:
                 break
-            seq = k & SEQ_MASK
             q = plant.read().q_rad
             stamp_ns = time_ns()  # when the pose was read, as a real driver would stamp it
             q_floats = q.tolist()
-            setpoint = m.pack_joint_setpoint(seq, stamp_ns, q_floats)
             put_started_s = perf_counter()
-            put(sp_pub, setpoint)
+            ros2.setpoint(stamp_ns, q_floats)
             put_time.add(perf_counter() - put_started_s)
-            if ros2 is not None:
-                ros2.setpoint(m.JointSetpoint(seq, stamp_ns, q_floats))
             q_hand, qd_hand = operator.reference(k)
             tau_hand = hand.update(q_hand, q, qd_hand)
             motor: Sequence[float] = no_torque
@@ -353,11 +316,7 @@ class MasterProcess:
                     motor = tau_motor.tolist()
             plant.command_torque(tau_hand)
             qd_floats = hand.velocity_rad_s.tolist()
-            put(js_pub, m.pack_joint_state(seq, stamp_ns, q_floats, qd_floats, motor))
-            if ros2 is not None:
-                ros2.joint_state(
-                    m.JointState(seq, stamp_ns, tuple(q_floats), tuple(qd_floats), tuple(motor))
-                )
+            ros2.joint_state(stamp_ns, q_floats, qd_floats, motor)
             self.published += 1
             plant.step()
 

@@ -21,14 +21,12 @@ class RunConfig:
             to have a matching subscriber and for the peer process (the slave waits for the
             master's liveliness token, the master for the slave's) (0: do not wait).
         stats_json: Where to write the final statistics (``None``: nowhere, ``-``: stdout).
-        ros2: Also publish on rmw_zenoh's keys (:mod:`master_slave.ros2_outputs`).
 
     """
 
     duration_s: float | None = None
     wait_subscribers_s: float = 0.0
     stats_json: str | None = None
-    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Check the ranges."""
@@ -77,10 +75,6 @@ def add_process_arguments(
         metavar="PATH",
         help="write the final statistics as JSON (- = stdout)",
     )
-    parser.add_argument(
-        "--ros2", action="store_true",
-        help="also publish as a ROS 2 node on rmw_zenoh's keys (docs/ros2.md)",
-    )  # fmt: skip
     add_zenoh_arguments(parser)
 
 
@@ -95,7 +89,6 @@ def run_config_from_args(args: argparse.Namespace) -> RunConfig:
         duration_s=args.duration,
         wait_subscribers_s=args.wait_subscribers,
         stats_json=args.stats_json,
-        ros2=args.ros2,
     )
 
 

@@ -1,15 +1,14 @@
-"""The ROS 2 publishers of the master and the slave (``--ros2``), beside their wire streams.
+"""The ROS 2 node of the master or the slave: its publishers, on rmw_zenoh's keys.
 
 One ROS 2 node per process (``teleop_force_master``, ``teleop_force_slave``, namespace ``/``),
-declared as rmw_zenoh declares one (:mod:`teleop_force.ros2.node`), publishing what the
-process publishes on its ``omni/<device>/...`` keys as standard messages on rmw_zenoh's keys
-(:mod:`teleop_force.ros2.topics`): the slave its ``/<device>/measured_js``
-(``sensor_msgs/msg/JointState``), ``/<device>/true_cf`` (``geometry_msgs/msg/WrenchStamped``,
-the simulated true tip force; zero out of contact) and ``/<device>/status``; the master its
-``/<device>/measured_js`` and ``/<device>/setpoint_js``. Joint names are the model's
-(``model_q1 model_q2 model_q3_absolute``): the plants run in the model's coordinates. With
-haptic feedback the master's node also subscribes to the slave's ``/<device>/estimated_cf``
-(:meth:`master_slave.master.FeedbackInbox.on_ros2_sample`).
+declared as rmw_zenoh declares one (:mod:`teleop_force.ros2.node`), publishing standard
+messages on the topics of :mod:`teleop_force.ros2.topics`: the slave its
+``/<device>/measured_js`` (``sensor_msgs/msg/JointState``), ``/<device>/true_cf``
+(``geometry_msgs/msg/WrenchStamped``, the simulated true tip force; zero out of contact) and
+``/<device>/status``; the master its ``/<device>/measured_js`` and ``/<device>/setpoint_js``.
+Joint names are the model's (``model_q1 model_q2 model_q3_absolute``): the plants run in the
+model's coordinates. The header stamp is the sample time; the attachment's source time the
+moment of publication. The processes subscribe through :attr:`Ros2Outputs.node`.
 """
 
 from __future__ import annotations
@@ -24,6 +23,7 @@ from teleop_force.ros2.node import Node, Publisher
 from teleop_force.transport import messages as m
 
 JOINTS: Final = 3
+_EMPTY: Final[tuple[float, ...]] = ()
 
 
 class Ros2Outputs:
@@ -49,20 +49,28 @@ class Ros2Outputs:
         """Return the Zenoh publisher of ``topic`` (to wait for its subscribers)."""
         return self._publishers[topic.kind].zenoh_publisher
 
-    def joint_state(self, msg: m.JointState) -> None:
+    def joint_state(
+        self,
+        t_ns: int,
+        q_rad: Sequence[float],
+        qd_rad_s: Sequence[float],
+        effort_nm: Sequence[float],
+    ) -> None:
         """Publish a measured joint state (position, velocity, commanded motor torque)."""
-        self._publishers[topics.MEASURED_JS.kind].publish(codec.encode_joint_state(msg, self.names))
-
-    def setpoint(self, msg: m.JointSetpoint) -> None:
-        """Publish a joint position setpoint."""
-        self._publishers[topics.SETPOINT_JS.kind].publish(
-            codec.encode_joint_setpoint(msg, self.names)
+        self._publishers[topics.MEASURED_JS.kind].publish(
+            codec.encode_joint_state_parts(t_ns, self.names, "", q_rad, qd_rad_s, effort_nm)
         )
 
-    def true_force(self, msg: m.ContactForce) -> None:
-        """Publish the true tip force in the base frame."""
+    def setpoint(self, t_ns: int, q_rad: Sequence[float]) -> None:
+        """Publish a joint position setpoint (a JointState with positions only)."""
+        self._publishers[topics.SETPOINT_JS.kind].publish(
+            codec.encode_joint_state_parts(t_ns, self.names, "", q_rad, _EMPTY, _EMPTY)
+        )
+
+    def true_force(self, t_ns: int, force_n: Sequence[float]) -> None:
+        """Publish the true tip force on the environment, in the base frame [N]."""
         self._publishers[topics.TRUE_CF.kind].publish(
-            codec.encode_contact_force(msg, topics.BASE_FRAME)
+            codec.encode_wrench(t_ns, force_n, topics.BASE_FRAME)
         )
 
     def status(self, msg: m.Status) -> None:

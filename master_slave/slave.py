@@ -5,27 +5,29 @@ Every 1 ms tick (``RateLoop``, perf_counter deadlines)::
     read the plant (measured q, true tip force)
     safety: follow the latest master setpoint, or hold (SafetyMonitor)
     PID toward the (slew-limited) setpoint, plus extra damping while holding
-    command the torque, publish JointState and ContactForce, step the plant
+    command the torque, publish the JointState and the true force, step the plant
 
-Published (``<slave>`` = ``--device``)::
+Published (``<slave>`` = ``--device``; ROS 2 topics of the node ``teleop_force_slave`` on
+rmw_zenoh's keys, :mod:`master_slave.ros2_outputs`)::
 
-    omni/<slave>/measured_js    JointState: measured q, qd (filtered difference), effort = the
-                                commanded (clipped) motor torque; seq = tick, t_ns = tick time
-    omni/<slave>/measured_cf    ContactForce: the plant's true tip force, same seq and t_ns
-    omni/<slave>/status         Status: on every change and every 100 ms
+    /<slave>/measured_js        sensor_msgs/JointState: measured q, qd (filtered difference),
+                                effort = the commanded (clipped) motor torque; stamp = tick time
+    /<slave>/true_cf            geometry_msgs/WrenchStamped: the plant's true tip force, same stamp
+    /<slave>/status             teleop_force_msgs/Status: on every change and every 100 ms
     omni/<slave>/alive/slave    liveliness token
     omni/<slave>/stats/slave    queryable: JSON statistics (loop, setpoints, safety)
 
-The stamp ``t_ns`` of tick ``k`` is its nominal time ``start + k * 1 ms``: the plant advances
+The stamp of tick ``k`` is its nominal time ``start + k * 1 ms``: the plant advances
 exactly one period per tick, so stamp differences are the simulated sample period (what the
 estimator differentiates with), and a tick that runs late shows as latency downstream.
 
-Subscribed: ``omni/<master>/setpoint_js`` and the master's liveliness token
+Subscribed: ``/<master>/setpoint_js`` (sensor_msgs/JointState, positions) and the master's
+liveliness token
 ``omni/<master>/alive/master``. SAFETY: when the token disappears or the last setpoint arrived
 more than ``--stale-ms`` (50) ago, the slave holds in the same tick: the setpoint is frozen at
 the current measured q and extra joint damping is added; Status HOLDING gives the reason. It
 follows again (slew-limited, no jump) once ``resume_count`` fresh setpoints have arrived with
-the token present. Malformed or wrong-version setpoints are counted and dropped.
+the token present. Malformed setpoints (or of other joint names) are counted and dropped.
 
 Run: ``python -m master_slave.slave --device slave --master master --connect tcp/...``.
 """
@@ -41,7 +43,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -55,6 +57,7 @@ from master_slave.process_args import (
     run_config_from_args,
 )
 from master_slave.realtime import LoopConfig, RateLoop
+from master_slave.ros2_outputs import Ros2Outputs
 from master_slave.safety import SafetyConfig, SafetyMonitor
 from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import (
@@ -64,7 +67,9 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.topics import MEASURED_JS
 from teleop_force.simulation import (
     EFFECT_NAMES,
@@ -79,21 +84,14 @@ from teleop_force.simulation import (
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
-    declare_data_publisher,
     declare_json_queryable,
     declare_liveliness_subscriber,
-    declare_subscriber,
     declare_token,
-    put,
     undeclare_all,
     wait_for_subscribers,
 )
 from teleop_force.transport.session import ZenohOptions, open_session, options_from_args
 from teleop_force.transport.stream_stats import LatencyHistogram, SequenceTracker
-
-if TYPE_CHECKING:
-    from master_slave.ros2_outputs import Ros2Outputs
-    from teleop_force.ros2.attachment import Attachment
 
 ROLE = "slave"
 #: Joints of the Omni: a setpoint for another count is malformed.
@@ -255,25 +253,12 @@ class SetpointInbox:
         self.seqs = SequenceTracker()
         self.latency = LatencyHistogram()
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh callback: decode, check, account for and keep one setpoint."""
-        arrival_ns = time.time_ns()
-        arrival_s = time.perf_counter()
-        try:
-            seq, t_ns, q = m.unpack_joint_setpoint(sample.payload.to_bytes(), JOINTS)
-        except MessageError as exc:
-            self._count_malformed(exc)
-            return
-        self._keep(seq, t_ns, q, arrival_ns, arrival_s)
-
-    def on_ros2_sample(self, payload: bytes, attachment: Attachment) -> None:
-        """rmw_zenoh callback (``--ros2``): a JointState setpoint in the model's coordinates.
+    def on_sample(self, payload: bytes, attachment: Attachment) -> None:
+        """rmw_zenoh callback: a JointState setpoint in the model's coordinates.
 
         Its loss is counted from the attachment's sequence number, its latency from the
         attachment's source time.
         """
-        from teleop_force.ros2 import codec
-
         arrival_ns = time.time_ns()
         arrival_s = time.perf_counter()
         try:
@@ -369,7 +354,6 @@ class SlaveProcess:
         self.hold_events_total = 0
         self._status_seq = 0
         self._last_status_s = -math.inf
-        self._status_pub: zenoh.Publisher | None = None
         self._ros2: Ros2Outputs | None = None
         #: The plant effect switched on mid-session, once it is (``effect``, ``at_s``).
         self.switched_effect: dict[str, Any] | None = None
@@ -404,33 +388,16 @@ class SlaveProcess:
         session = open_session(self.options)
         entities: list[Any] = []
         try:
-            js_pub = declare_data_publisher(session, keys.measured_js(config.device))
-            cf_pub = declare_data_publisher(session, keys.measured_cf(config.device))
-            self._status_pub = declare_data_publisher(session, keys.status(config.device))
-            entities += [js_pub, cf_pub, self._status_pub]
-            if config.run.ros2:
-                from master_slave.ros2_outputs import Ros2Outputs  # rosbags: with --ros2 only
-
-                self._ros2 = Ros2Outputs(
-                    session, ROLE, config.device,
-                    (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
-                )  # fmt: skip
-            if self._ros2 is not None:  # the setpoints as ROS JointStates only
-                self._ros2.node.subscription(
-                    ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),
-                    ros2_topics.SETPOINT_JS.ros_type,
-                    self.inbox.on_ros2_sample,
-                    direct=True,
-                )
-            else:
-                entities.append(
-                    declare_subscriber(
-                        session,
-                        keys.setpoint_js(config.master),
-                        # on Zenoh's receive thread: no hand-over to a Python thread per sample
-                        zenoh.handlers.Callback(self.inbox.on_sample, indirect=False),
-                    )
-                )
+            ros2 = self._ros2 = Ros2Outputs(
+                session, ROLE, config.device,
+                (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
+            )  # fmt: skip
+            ros2.node.subscription(
+                ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),
+                ros2_topics.SETPOINT_JS.ros_type,
+                self.inbox.on_sample,
+                direct=True,  # on Zenoh's receive thread: no hand-over to a Python thread
+            )
             entities.append(
                 declare_liveliness_subscriber(
                     session, keys.alive(config.master, "master"), self.presence.on_sample
@@ -444,7 +411,7 @@ class SlaveProcess:
                 # The master too (its token): a peer joining while the loop runs holds up
                 # the loop's puts for tens of milliseconds (Zenoh updates its routes).
                 matched = wait_for_subscribers(
-                    js_pub if self._ros2 is None else self._ros2.zenoh_publisher(MEASURED_JS),
+                    ros2.zenoh_publisher(MEASURED_JS),
                     config.run.wait_subscribers_s,
                     stop=self.stop.is_set,
                     ready=lambda: self.presence.alive,
@@ -458,23 +425,22 @@ class SlaveProcess:
                 ROLE,
                 f"{config.device} running at {config.loop.rate_hz:g} Hz, following {config.master}",
             )
-            self._control_loop(js_pub, cf_pub)
+            self._control_loop(ros2)
             self.safety.stop("slave stopped")
             self._publish_status(time.perf_counter(), force=True)
         finally:
-            ros2, self._ros2 = self._ros2, None
-            if ros2 is not None:
-                ros2.close()
+            outputs, self._ros2 = self._ros2, None
+            if outputs is not None:
+                outputs.close()
             undeclare_all(*reversed(entities))
             self.plant.close()
             session.close()
         return self.stats()
 
-    def _control_loop(self, js_pub: zenoh.Publisher, cf_pub: zenoh.Publisher) -> None:
+    def _control_loop(self, ros2: Ros2Outputs) -> None:
         config = self.config
         plant, pid, loop, safety, inbox = self.plant, self.pid, self.loop, self.safety, self.inbox
         presence, put_time, stop = self.presence, self.put_time, self.stop
-        ros2 = self._ros2
         n_ticks = (
             None
             if config.run.duration_s is None
@@ -521,18 +487,12 @@ class SlaveProcess:
                 if switch_tick is not None and k >= switch_tick:  # ticks may be skipped
                     self._switch_effect(history, k * config.loop.period_s)
                     switch_tick = None
-            seq = k & SEQ_MASK
             q_l, qd_l, tau_l = q.tolist(), pid.velocity_rad_s.tolist(), command.tau_nm.tolist()
-            joint_state = m.pack_joint_state(seq, stamp_ns, q_l, qd_l, tau_l)
             put_started_s = perf_counter()
-            put(js_pub, joint_state)
+            ros2.joint_state(stamp_ns, q_l, qd_l, tau_l)
             put_time.add(perf_counter() - put_started_s)
             force = state.f_tip_in_base_n
-            f_n = no_force if force is None else force.tolist()
-            put(cf_pub, m.pack_contact_force(seq, stamp_ns, f_n))
-            if ros2 is not None:
-                ros2.joint_state(m.JointState(seq, stamp_ns, tuple(q_l), tuple(qd_l), tuple(tau_l)))
-                ros2.true_force(m.ContactForce(seq, stamp_ns, f_n))
+            ros2.true_force(stamp_ns, no_force if force is None else force.tolist())
             self.published += 1
             if now_s - self._last_status_s >= STATUS_PERIOD_S:
                 self._publish_status(now_s)
@@ -564,14 +524,10 @@ class SlaveProcess:
             log(ROLE, f"HOLDING: {reason}")
 
     def _publish_status(self, now_s: float, force: bool = False) -> None:
-        if self._status_pub is None or (
-            not force and now_s - self._last_status_s < STATUS_PERIOD_S
-        ):
+        if self._ros2 is None or (not force and now_s - self._last_status_s < STATUS_PERIOD_S):
             return
         status = m.Status(self._status_seq, time.time_ns(), self.safety.state, self.safety.reason)
-        put(self._status_pub, status.encode())
-        if self._ros2 is not None:
-            self._ros2.status(status)
+        self._ros2.status(status)
         self._status_seq += 1
         self._last_status_s = now_s
 

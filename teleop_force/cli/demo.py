@@ -99,7 +99,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -122,18 +122,20 @@ from teleop_force.process.warm_up import (
     is_warm,
     warm_up,
 )
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node, QueueSubscription
+from teleop_force.ros2.streams import EstimateJoiner
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_liveliness_subscriber,
-    declare_queue_subscriber,
     query_json,
     undeclare_all,
 )
 from teleop_force.transport.session import (
     ZenohOptions,
-    free_tcp_port,
     listen_endpoint,
     open_session,
 )
@@ -158,7 +160,10 @@ class DemoConfig:
         duration_s: Run this long from the first estimate (``None``: until Ctrl-C).
         headless: Do not start the dashboard.
         dashboard_port: HTTP port of the dashboard.
-        zenoh_port: Port of the rendezvous endpoint (``None``: a free one).
+        zenoh_port: Port of the Zenoh router every process connects to (``None``:
+            ``ROS2_ROUTER_PORT``, 7447, rmw_zenoh's default, where ROS 2 nodes find it). The
+            demo starts ``python -m teleop_force.transport.router`` there when the port is
+            free, and joins the router already listening there (``rmw_zenohd``) when not.
         model: Model for the service (``None``: the shipped one).
         record_dir: Where the session is recorded.
         summary_json: Where to write the final summary as JSON.
@@ -183,15 +188,6 @@ class DemoConfig:
         master_args: Extra arguments of the master process (``--seed N``: the operator's
             script).
         record: Record the session (every message, by the service, to ``record_dir``).
-        router: Run through a Zenoh router (``python -m teleop_force.transport.router`` on
-            the rendezvous port): every process, the supervisor included, opens its session
-            in client mode and connects to it, as master and slave on two hosts would; no
-            peer-to-peer link. Its CPU is reported as ``router``.
-        ros2: The service, the slave and the master are ROS 2 nodes too (their ``--ros2``,
-            [docs/ros2.md]), and the demo runs through a router on ``ROS2_ROUTER_PORT``
-            (7447, unless ``zenoh_port`` says otherwise), where rmw_zenoh's nodes find it:
-            it starts ``python -m teleop_force.transport.router`` there when the port is
-            free, and joins the router already listening there (``rmw_zenohd``) when not.
         realtime_nice: Nice value of the service, the slave and the master (``None``: the
             supervisor's); it matters when they do not run in the real-time class. A
             negative value needs the same privilege.
@@ -218,9 +214,7 @@ class DemoConfig:
     service_args: tuple[str, ...] = ()
     slave_args: tuple[str, ...] = ()
     master_args: tuple[str, ...] = ()
-    router: bool = False
     record: bool = True
-    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Check the ranges and ids."""
@@ -415,18 +409,22 @@ class _Presence:
 #: Samples a monitor channel holds (about 30 s of a 2 kHz stall); beyond, the oldest go
 #: (and count as lost): the supervisor never blocks a publisher.
 _CHANNEL_CAPACITY: Final = 1 << 16
+_SEQ_MASK: Final = 0xFFFF_FFFF
+#: Where each process listens for its peers' direct links (a free port on loopback).
+_ANY_LOOPBACK_PORT: Final = "tcp/127.0.0.1:0"
 #: How often the monitor drains its channels [s].
 _DRAIN_PERIOD_S: Final = 0.05
 
 
 class _Monitor:
-    """The supervisor's own subscriptions: estimates, true forces, slave status.
+    """The supervisor's own ROS 2 subscriptions: estimates, true forces, slave status.
 
-    Cheap by construction: the subscribers queue samples in Zenoh's ring channels (no Python,
-    no GIL on Zenoh's receive threads), and one worker thread drains them every
-    ``_DRAIN_PERIOD_S``. It unpacks an estimate or a true force with the object-free
-    unpackers of :mod:`teleop_force.transport.messages` (every check of their ``decode``; seq
-    for the loss count, source seq and force for the accuracy figure).
+    Cheap by construction: the subscriptions queue samples in Zenoh's ring channels (no
+    Python, no GIL on Zenoh's receive threads), and one worker thread drains them every
+    ``_DRAIN_PERIOD_S``, decoding with :mod:`teleop_force.ros2.codec`. Loss is counted from
+    the attachments' sequence numbers. The accuracy figure pairs an estimate with the true
+    force of the same tick: its ``source_sequence`` (the slave's JointState sequence number)
+    equals the sequence number of the slave's true force, published in the same tick.
     """
 
     def __init__(self, accuracy: AccuracyConfig) -> None:
@@ -440,72 +438,70 @@ class _Monitor:
         self.state = "unknown"
         self.reason = ""
         self.holds_seen = 0
-        self._subscribers: list[tuple[Any, Any]] = []
+        self._node: Node | None = None
+        self._joiner = EstimateJoiner(self._on_estimate, max_unpaired=_CHANNEL_CAPACITY)
+        self._subscriptions: list[tuple[QueueSubscription, Callable[[bytes, Attachment], None]]]
+        self._subscriptions = []
         self._lock = threading.Lock()  # one drain at a time (worker, final drain)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
 
     def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
-        """Declare the ring-channel subscribers, start the worker; return the subscribers."""
-        for key, handle in (
-            (keys.estimated_cf(slave), self._on_estimate),
-            (keys.measured_cf(slave), self._on_true_force),
-            (keys.status(slave), self._on_status),
+        """Declare the node and its ring-channel subscriptions, start the worker."""
+        node = self._node = Node(session, "teleop_force_demo")
+        for topic, handle in (
+            (topics.ESTIMATED_CF, self._joiner.on_wrench),
+            (topics.ESTIMATE_DIAGNOSTICS, self._joiner.on_diagnostics),
+            (topics.TRUE_CF, self._on_true_force),
+            (topics.STATUS, self._on_status),
         ):
-            subscriber = declare_queue_subscriber(session, key, _CHANNEL_CAPACITY, drop_oldest=True)
-            self._subscribers.append((subscriber, handle))
+            subscription = node.queue_subscription(
+                topics.topic_name(slave, topic), topic.ros_type, _CHANNEL_CAPACITY
+            )
+            self._subscriptions.append((subscription, handle))
         self._thread.start()
-        return [subscriber for subscriber, _ in self._subscribers]
+        return []
 
     def drain(self) -> None:
         """Process every sample received so far."""
         with self._lock:
-            for subscriber, handle in self._subscribers:
-                try:
-                    sample = subscriber.try_recv()
-                    while sample is not None:
-                        handle(sample.payload.to_bytes())
-                        sample = subscriber.try_recv()
-                except zenoh.ZError:  # undeclared meanwhile: nothing more to read
-                    continue
+            for subscription, handle in self._subscriptions:
+                while (received := subscription.try_recv()) is not None:
+                    try:
+                        handle(*received)
+                    except MessageError:
+                        self.malformed += 1
 
     def close(self) -> None:
-        """Stop the worker thread after a last drain (before the subscribers go)."""
+        """Stop the worker thread after a last drain, then undeclare the node."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(5.0)
         self.drain()
+        node, self._node = self._node, None
+        if node is not None:
+            node.close()
+        self.malformed += sum(s.malformed for s, _ in self._subscriptions)
+        self._subscriptions = []
 
     def _run(self) -> None:
         while not self._stop.wait(_DRAIN_PERIOD_S):
             self.drain()
 
-    def _on_estimate(self, payload: bytes) -> None:
-        try:
-            seq, t_ns, source_seq, force = m.unpack_force_estimate(payload)
-        except MessageError:
-            self.malformed += 1
-            return
+    def _on_estimate(self, estimate: m.ForceEstimateMessage, attachment: Attachment) -> None:
         if self.first_estimate_ns is None:
-            self.first_estimate_ns, self.first_source_seq = t_ns, source_seq
-        self.estimates.observe(seq)
-        self.accuracy.add_estimate(source_seq, force)
+            self.first_estimate_ns, self.first_source_seq = estimate.t_ns, estimate.source_seq
+        self.estimates.observe(estimate.seq)
+        self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
 
-    def _on_true_force(self, payload: bytes) -> None:
-        try:
-            seq, _t_ns, force = m.unpack_contact_force(payload)
-        except MessageError:
-            self.malformed += 1
-            return
+    def _on_true_force(self, payload: bytes, attachment: Attachment) -> None:
+        seq = attachment.sequence_number & _SEQ_MASK
+        force = codec.decode_contact_force(payload, seq)
         self.true_forces.observe(seq)
-        self.accuracy.add_true(seq, force)
+        self.accuracy.add_true(seq, force.f_n)
 
-    def _on_status(self, payload: bytes) -> None:
-        try:
-            status = m.Status.decode(payload)
-        except MessageError:
-            self.malformed += 1
-            return
+    def _on_status(self, payload: bytes, attachment: Attachment) -> None:
+        status = codec.decode_status(payload, attachment.sequence_number & _SEQ_MASK)
         state = status.state.name.lower()
         if state == "holding" and self.state != "holding":
             self.holds_seen += 1
@@ -616,18 +612,15 @@ class DemoSupervisor:
             # subscribes to (congestion control BLOCK) then wait for it.
             with contextlib.suppress(OSError):
                 os.setpriority(os.PRIO_PROCESS, 0, config.realtime_nice)
-        port = config.zenoh_port or (ROS2_ROUTER_PORT if config.ros2 else free_tcp_port())
-        self.endpoint = listen_endpoint(port)
-        if config.ros2 and _accepts_connections(self.endpoint):
+        self.endpoint = listen_endpoint(config.zenoh_port or ROS2_ROUTER_PORT)
+        if _accepts_connections(self.endpoint):
             self.say(f"joining the Zenoh router already on {self.endpoint}")
-        elif config.router or config.ros2:
-            self._start_router(log)
-        if config.router or config.ros2:
-            options = ZenohOptions(
-                mode="client", connect=(self.endpoint,), multicast_scouting=False
-            )
         else:
-            options = ZenohOptions(mode="peer", listen=(self.endpoint,), multicast_scouting=False)
+            self._start_router(log)
+        options = ZenohOptions(
+            mode="peer", connect=(self.endpoint,), listen=(_ANY_LOOPBACK_PORT,),
+            multicast_scouting=False,
+        )  # fmt: skip
         self.session = open_session(options)
         entities: list[Any] = []
         final: dict[str, Any] = {}
@@ -638,8 +631,10 @@ class DemoSupervisor:
                 )
             )
             entities += self.monitor.subscribe(self.session, config.slave)
-            topology = "router, clients" if config.router or config.ros2 else "peer mode"
-            self.say(f"zenoh endpoint: {self.endpoint} ({topology}, no multicast)")
+            self.say(
+                f"zenoh router: {self.endpoint} (the processes are its peers, linked directly "
+                "to each other; ROS 2 nodes its clients; no multicast)"
+            )
             self.say(f"recording: {self.recording}   logs: {self.log_path}")
             self._warm_up()
             if self._start_all(log) and self._wait_for_first_estimate():
@@ -744,9 +739,7 @@ class DemoSupervisor:
         self._scheduling = {c.name: c.scheduling() for c in self.children}
 
     def _connect_args(self) -> list[str]:
-        if self.config.router or self.config.ros2:
-            return ["--mode", "client", "--connect", self.endpoint, "--no-multicast"]
-        return ["--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0", "--no-multicast"]
+        return ["--connect", self.endpoint, "--listen", _ANY_LOOPBACK_PORT, "--no-multicast"]
 
     def _start_recorder(self, log: IO[bytes]) -> Child:
         """Start the session recorder (the slave waits for it: it records from the first sample).
@@ -758,7 +751,6 @@ class DemoSupervisor:
         args = [
             "--record", str(self.recording), "--device", config.slave, "--master", config.master,
             "--model", str(config.model or DEFAULT_MODEL_PATH),
-            *(["--ros2"] if config.ros2 else []),
         ]  # fmt: skip
         argv = _python_module("teleop_force.service.session_recorder", *args, *self._connect_args())
         child = Child("recorder", argv, log, nice=config.realtime_nice)
@@ -800,13 +792,9 @@ class DemoSupervisor:
         ]  # fmt: skip
         if config.haptic_feedback:
             master.append("--haptic-feedback")
-        if config.ros2:
-            service.append("--ros2")
-            master.append("--ros2")
         slave = [
             "--device", config.slave, "--master", config.master,
             "--surface-y", surface, "--wait-subscribers", wait, *config.slave_args,
-            *(["--ros2"] if config.ros2 else []),
         ]  # fmt: skip
         steps = [
             (

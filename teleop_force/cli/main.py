@@ -279,8 +279,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         haptic_feedback=args.haptic_feedback,
         accuracy=AccuracyConfig(contact_threshold_n=args.contact_threshold),
         record=not args.no_record,
-        router=args.router,
-        ros2=args.ros2,
         service_args=tuple(
             flag
             for flag, on in (("--adapt", args.adapt), ("--zenoh-floor", args.zenoh_floor))
@@ -756,7 +754,8 @@ def _add_demo(subparsers: _Subparsers) -> None:
         type=int,
         default=None,
         metavar="P",
-        help="port of the Zenoh rendezvous endpoint on 127.0.0.1 (default: a free one)",
+        help="port of the Zenoh router on 127.0.0.1 (default 7447, rmw_zenoh's: started, or "
+        "joined when one listens there)",
     )
     p.add_argument("--model", default=None, help="model JSON (default: the shipped omni_sim.json)")
     p.add_argument("--record-dir", default="recordings", help="where the session is recorded")
@@ -783,17 +782,8 @@ def _add_demo(subparsers: _Subparsers) -> None:
     p.add_argument("--adapt", action="store_true", help="start the service with WN adaptation on")
     add_estimator_arguments(p)
     p.add_argument(
-        "--router", action="store_true",
-        help="run through a Zenoh router: every process a client of it (as on two hosts)",
-    )  # fmt: skip
-    p.add_argument(
         "--zenoh-floor", action="store_true",
         help="run the service as its Zenoh floor (same traffic, no work; for benchmarks)",
-    )  # fmt: skip
-    p.add_argument(
-        "--ros2", action="store_true",
-        help="service, slave and master are ROS 2 nodes too (rmw_zenoh keys), through a "
-        "router on 127.0.0.1:7447 (started, or joined when one listens there)",
     )  # fmt: skip
     p.add_argument(
         "--rt-priority", type=int, default=None, metavar="P",

@@ -98,8 +98,19 @@ class NamedJoints:
     frame_id: str
 
 
-def _joint_state(t_ns: int, names: Sequence[str], frame_id: str, *arrays: Sequence[float]) -> bytes:
-    q, qd, effort = (np.asarray(a, dtype=np.float64) for a in arrays)
+def encode_joint_state_parts(
+    t_ns: int,
+    names: Sequence[str],
+    frame_id: str,
+    q_rad: Sequence[float],
+    qd_rad_s: Sequence[float],
+    effort_nm: Sequence[float],
+) -> bytes:
+    """Return ``sensor_msgs/msg/JointState`` from its arrays (no message value is built).
+
+    ``qd_rad_s`` and ``effort_nm`` may be empty (a setpoint); ``names`` has one per position.
+    """
+    q, qd, effort = (np.asarray(a, dtype=np.float64) for a in (q_rad, qd_rad_s, effort_nm))
     return _serialize(
         _JOINT_STATE(header=_header(t_ns, frame_id), name=_names(names, len(q)), position=q,
                      velocity=qd, effort=effort),
@@ -109,7 +120,9 @@ def _joint_state(t_ns: int, names: Sequence[str], frame_id: str, *arrays: Sequen
 
 def encode_joint_state(msg: m.JointState, names: Sequence[str], frame_id: str = "") -> bytes:
     """Return ``sensor_msgs/msg/JointState``: position, velocity, effort = q, q̇, motor torque."""
-    return _joint_state(msg.t_ns, names, frame_id, msg.q_rad, msg.qd_rad_s, msg.effort_nm)
+    return encode_joint_state_parts(
+        msg.t_ns, names, frame_id, msg.q_rad, msg.qd_rad_s, msg.effort_nm
+    )
 
 
 def decode_joint_state(
@@ -130,7 +143,7 @@ def decode_joint_state(
 
 def encode_joint_setpoint(msg: m.JointSetpoint, names: Sequence[str], frame_id: str = "") -> bytes:
     """Return ``sensor_msgs/msg/JointState`` with ``position`` only (velocity, effort empty)."""
-    return _joint_state(msg.t_ns, names, frame_id, msg.q_rad, _EMPTY, _EMPTY)
+    return encode_joint_state_parts(msg.t_ns, names, frame_id, msg.q_rad, _EMPTY, _EMPTY)
 
 
 def decode_joint_setpoint(
@@ -205,24 +218,47 @@ class EstimateDiagnostics:
     tau_model_filtered_nm: tuple[float, ...]
 
 
+def encode_estimate_parts(
+    t_ns: int,
+    source_sequence: int,
+    force_n: Sequence[float],
+    tau_ext_nm: Sequence[float],
+    coverage_weight: Sequence[float],
+    on_trained_ground: Sequence[bool],
+    tau_motor_filtered_nm: Sequence[float],
+    tau_model_filtered_nm: Sequence[float],
+    names: Sequence[str],
+    frame_id: str,
+) -> tuple[bytes, bytes]:
+    """Return an estimate's WrenchStamped and EstimateDiagnostics (one header) from its parts.
+
+    The service's path: no message value is built. ``force_n`` may hold NaN (near-singular).
+    """
+    diagnostics = _serialize(
+        _ESTIMATE_DIAGNOSTICS(
+            header=_header(t_ns, frame_id),
+            source_sequence=int(source_sequence),
+            name=_names(names, len(tau_ext_nm)),
+            external_torque_nm=np.asarray(tau_ext_nm, dtype=np.float64),
+            coverage_weight=np.asarray(coverage_weight, dtype=np.float64),
+            on_trained_ground=np.asarray(on_trained_ground, dtype=np.bool_),
+            motor_torque_filtered_nm=np.asarray(tau_motor_filtered_nm, dtype=np.float64),
+            model_torque_filtered_nm=np.asarray(tau_model_filtered_nm, dtype=np.float64),
+        ),
+        i.ESTIMATE_DIAGNOSTICS,
+    )
+    return encode_wrench(t_ns, force_n, frame_id), diagnostics
+
+
 def encode_estimate(
     msg: m.ForceEstimateMessage, names: Sequence[str], frame_id: str
 ) -> tuple[bytes, bytes]:
     """Return the estimate's WrenchStamped and its EstimateDiagnostics, with one header."""
-    diagnostics = _serialize(
-        _ESTIMATE_DIAGNOSTICS(
-            header=_header(msg.t_ns, frame_id),
-            source_sequence=int(msg.source_seq),
-            name=_names(names, len(msg.tau_ext_nm)),
-            external_torque_nm=np.asarray(msg.tau_ext_nm, dtype=np.float64),
-            coverage_weight=np.asarray(msg.coverage_weight, dtype=np.float64),
-            on_trained_ground=np.asarray(msg.on_trained_ground, dtype=np.bool_),
-            motor_torque_filtered_nm=np.asarray(msg.tau_motor_filtered_nm, dtype=np.float64),
-            model_torque_filtered_nm=np.asarray(msg.tau_model_filtered_nm, dtype=np.float64),
-        ),
-        i.ESTIMATE_DIAGNOSTICS,
-    )
-    return encode_wrench(msg.t_ns, msg.f_n, frame_id), diagnostics
+    return encode_estimate_parts(
+        msg.t_ns, msg.source_seq, msg.f_n, msg.tau_ext_nm, msg.coverage_weight,
+        msg.on_trained_ground, msg.tau_motor_filtered_nm, msg.tau_model_filtered_nm, names,
+        frame_id,
+    )  # fmt: skip
 
 
 def decode_estimate_diagnostics(payload: bytes | bytearray | memoryview) -> EstimateDiagnostics:

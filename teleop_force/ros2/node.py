@@ -108,6 +108,45 @@ class Subscription:
         pubsub.undeclare_all(self._token, self._subscriber)
 
 
+class QueueSubscription:
+    """A subscription whose samples wait in a ring, taken with :meth:`try_recv` later.
+
+    For receivers that want the messages but not at once (the demo's supervisor): no Python
+    runs on Zenoh's receive thread. A full ring drops its oldest samples.
+    """
+
+    def __init__(self, node: Node, entity: graph.Entity, key: str, capacity: int) -> None:
+        """Declare the ring-channel subscriber on ``key`` and the entity's liveliness token."""
+        self.entity = entity
+        self.key = key
+        self.malformed = 0
+        self._subscriber = pubsub.declare_queue_subscriber(
+            node.session, key, capacity, drop_oldest=True
+        )
+        self._token = pubsub.declare_token(node.session, entity.token_key)
+
+    def try_recv(self) -> tuple[bytes, Attachment] | None:
+        """Return the oldest sample waiting, or None; samples without attachment are skipped."""
+        while True:
+            try:
+                sample = self._subscriber.try_recv()
+            except zenoh.ZError:  # undeclared meanwhile: nothing more to read
+                return None
+            if sample is None:
+                return None
+            raw = sample.attachment
+            try:
+                if raw is None:
+                    raise MessageError("sample without rmw_zenoh's attachment")
+                return sample.payload.to_bytes(), Attachment.decode(raw.to_bytes())
+            except MessageError:
+                self.malformed += 1
+
+    def close(self) -> None:
+        """Undeclare the token, then the subscriber."""
+        pubsub.undeclare_all(self._token, self._subscriber)
+
+
 class Node:
     """One ROS 2 node on ``session`` (one context per session, as in rmw_zenoh)."""
 
@@ -139,7 +178,7 @@ class Node:
             node_name=name,
             enclave=enclave,
         )
-        self._entities: list[Publisher | Subscription] = []
+        self._entities: list[Publisher | Subscription | QueueSubscription] = []
         self._token = pubsub.declare_token(session, self.entity.token_key)
 
     def _entity(
@@ -187,6 +226,21 @@ class Node:
         entity, info = self._entity(graph.EntityKind.SUBSCRIPTION, topic, ros_type, qos)
         key = graph.topic_key_any_hash(self.domain_id, info.name, ros_type)
         subscription = Subscription(self, entity, key, callback, direct=direct)
+        self._entities.append(subscription)
+        return subscription
+
+    def queue_subscription(
+        self,
+        topic: str,
+        ros_type: str,
+        capacity: int,
+        *,
+        qos: graph.Qos = graph.KEEP_ALL_RELIABLE,
+    ) -> QueueSubscription:
+        """Declare a ring-channel subscription to ``topic``; see :class:`QueueSubscription`."""
+        entity, info = self._entity(graph.EntityKind.SUBSCRIPTION, topic, ros_type, qos)
+        key = graph.topic_key_any_hash(self.domain_id, info.name, ros_type)
+        subscription = QueueSubscription(self, entity, key, capacity)
         self._entities.append(subscription)
         return subscription
 

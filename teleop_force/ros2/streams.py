@@ -85,7 +85,8 @@ class EstimateJoiner:
     """Pairs estimate halves by header stamp; see the module docstring.
 
     Thread-safe (the two halves arrive on different Zenoh threads). :attr:`unpaired` counts
-    halves dropped because :data:`MAX_UNPAIRED` newer ones were waiting.
+    halves dropped because ``max_unpaired`` newer ones were waiting (a receiver that drains
+    its queues in batches sets it above its batch).
     """
 
     def __init__(
@@ -94,11 +95,13 @@ class EstimateJoiner:
         n_joints: int | None = None,
         *,
         seq_mask: int = _SEQ_MASK,
+        max_unpaired: int = MAX_UNPAIRED,
     ) -> None:
         """``on_estimate(ForceEstimateMessage, wrench attachment)`` gets each joined pair."""
         self._on_estimate = on_estimate
         self._n_joints = n_joints
         self._seq_mask = seq_mask
+        self._max_unpaired = max(1, int(max_unpaired))
         self._lock = threading.Lock()
         self._wrenches: OrderedDict[int, tuple[codec.Wrench, Attachment]] = OrderedDict()
         self._diagnostics: OrderedDict[int, codec.EstimateDiagnostics] = OrderedDict()
@@ -127,7 +130,7 @@ class EstimateJoiner:
 
     def _keep(self, waiting: OrderedDict[int, Any], t_ns: int, value: Any) -> None:
         waiting[t_ns] = value
-        while len(waiting) > MAX_UNPAIRED:
+        while len(waiting) > self._max_unpaired:
             waiting.popitem(last=False)
             self.unpaired += 1
 

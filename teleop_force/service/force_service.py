@@ -2,21 +2,21 @@
 
 For one device (``--device``, the slave)::
 
-    subscribes  omni/<device>/measured_js     JointState: q and effort = commanded torque
-    publishes   omni/<device>/estimated_cf    ForceEstimateMessage, one per joint state
+    subscribes  /<device>/measured_js         sensor_msgs/JointState: q, q̇, effort = motor torque
+    publishes   /<device>/estimated_cf        geometry_msgs/WrenchStamped, one per joint state
+    publishes   /<device>/estimate_diagnostics  teleop_force_msgs/EstimateDiagnostics (same stamp)
+    publishes   /<device>/service/diagnostics   teleop_force_msgs/ServiceDiagnostics (1 Hz)
     queryable   omni/<device>/service/model   the model JSON (DynamicModel.to_dict());
                                               {"load": "/abs/model.json"}: run that model
     queryable   omni/<device>/service/control {"record": "start", "path": "/abs/x.mcap"},
                                               {"record": "stop"}
     queryable   omni/<device>/service/stats   JSON statistics (below)
     subscribes  omni/<device>/service/adapt   "on" / "off": online WN adaptation
-    publishes   omni/<device>/service/diagnostics  the residual watch (JSON, 1 Hz)
     token       omni/<device>/alive/service
 
-With ``--ros2`` it is also a ROS 2 node on rmw_zenoh's keys (:mod:`.ros2_edge`): it estimates
-on ``sensor_msgs/msg/JointState`` from ``/<device>/measured_js`` instead of the wire
-JointState (one source: a sample published both ways is estimated on once), and publishes
-every estimate on ``/<device>/estimated_cf`` and ``/<device>/estimate_diagnostics`` too.
+The ``/<device>/...`` topics are ROS 2 topics on rmw_zenoh's keys, with its attachment and
+liveliness tokens: the service is the ROS 2 node ``teleop_force_service``
+(:mod:`.ros2_edge`); the ``omni/<device>/...`` keys are the project's JSON controls.
 
 The residual watch (:mod:`teleop_force.service.residual_watch`) tests, in a thread of its own
 at 1 Hz, whether the external torque in free motion starts to depend on a variable; the
@@ -27,15 +27,15 @@ with.
 
 Each joint state is estimated on in the Zenoh receive thread that delivers it (the compiled
 step of :class:`~teleop_force.estimation.estimator.ForceEstimator` costs microseconds: no
-queue, no thread hop, no message object; the payload is checked and unpacked with
-:func:`~teleop_force.transport.messages.unpack_joint_state` and the estimate packed with
-:func:`~teleop_force.transport.messages.pack_force_estimate`), streaming, with no
+queue, no thread hop; the CDR JointState is decoded and the estimate encoded with
+:mod:`teleop_force.ros2.codec`), streaming, with no
 accelerations, with the time ``t = (t_ns - t0_ns) * 1e-9`` counted in integer nanoseconds
 from the first sample of the stream, so the same stream gives the same floats whenever it is
 played (a replay shifted in time included). A stream restarts, and the estimator with it,
-when its ``seq`` goes backwards or jumps far, or its stamp goes backwards or pauses > 0.5 s.
-The estimate's ``source_seq`` is the joint state's ``seq`` and its ``t_ns`` the time it was
-published, so ``t_ns - (joint state t_ns)`` is the slave -> estimate latency.
+when its ``seq`` (the attachment's sequence number) goes backwards or jumps far, or its
+header stamp goes backwards or pauses > 0.5 s. The estimate's ``source_sequence`` is the
+joint state's sequence number and its stamp the time it was published; the slave -> estimate
+latency is measured from the joint state's attachment source time.
 
 Statistics (``service/stats``): joint states received / lost (sequence gaps) / restarts /
 duplicates, malformed messages dropped (by key), estimates published, singular, errors,
@@ -82,7 +82,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final
 
 import numpy as np
 import zenoh
@@ -111,7 +111,8 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.ros2 import topics
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.service.adaptation import (
     DEFAULT_FORCE_THRESHOLD_N,
     DEFAULT_GUARD_S,
@@ -136,24 +137,20 @@ from teleop_force.service.counters import (
 from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.service.residual_watch import ResidualWatch
+from teleop_force.service.ros2_edge import Ros2Edge
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
-    declare_data_publisher,
     declare_json_queryable,
     declare_queryable,
     declare_subscriber,
     declare_token,
-    put,
     reply_json,
     undeclare_all,
 )
 from teleop_force.transport.session import open_session, options_from_args
-
-if TYPE_CHECKING:
-    from teleop_force.service.ros2_edge import Ros2Edge
 
 ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
@@ -185,9 +182,6 @@ class ServiceConfig:
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
-        ros2: Be a ROS 2 node too (:mod:`teleop_force.service.ros2_edge`): estimate on
-            rmw_zenoh's JointStates (instead of the wire ones) and publish every estimate on
-            rmw_zenoh's keys as well.
 
     """
 
@@ -202,13 +196,11 @@ class ServiceConfig:
     zenoh_floor: bool = False
     residual_watch: bool = True
     adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
-    ros2: bool = False
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
         keys.validate_chunk(self.device)
-        if self.ros2:
-            topics.validate_device(self.device)
+        topics.validate_device(self.device)
         if self.master is not None:
             keys.validate_chunk(self.master, "master device id")
         if self.record_path is not None:
@@ -254,6 +246,7 @@ class ForceService:
         self.allowed_models = model_folders(self.config.models_dirs)
         self.allowed_records = record_folders(self.config.record_dirs)
         self._own_js_key = keys.measured_js(self.config.device)
+        self._own_js_topic = topics.topic_name(self.config.device, topics.MEASURED_JS)
         self._estimate_key = keys.estimated_cf(self.config.device)
         self._init_runtime()
         self.stream = StreamClock()
@@ -276,9 +269,11 @@ class ForceService:
         )
         if self.config.adapt:
             self.set_adaptation(True)
-        self._floor_payload = m.pack_force_estimate(
-            0, 0, 0, self.n_joints, [0.0] * (3 + 4 * self.n_joints), 0
-        )
+        zeros = [0.0] * self.n_joints
+        self._floor_payloads = codec.encode_estimate_parts(
+            0, 0, (0.0, 0.0, 0.0), zeros, zeros, [False] * self.n_joints, zeros, zeros,
+            topics.model_joint_names(self.n_joints), topics.BASE_FRAME,
+        )  # fmt: skip
         self._floor_received = 0
         if self.config.record_path is not None and not self.config.zenoh_floor:
             self.recording.recorder = BackgroundRecorder(
@@ -290,7 +285,6 @@ class ForceService:
         self._lock = threading.Lock()
         self._closed = False
         self._entities: list[Any] = []
-        self._publisher: zenoh.Publisher | None = None
         self._ros2: Ros2Edge | None = None
         self._queries: queue.SimpleQueue[tuple[str, zenoh.Query] | None] = queue.SimpleQueue()
         self._control_thread: threading.Thread | None = None
@@ -318,37 +312,22 @@ class ForceService:
         """Declare the publisher, subscribers, queryables and token; return self."""
         device = self.config.device
         session = self.session
-        self._publisher = declare_data_publisher(session, self._estimate_key)
-        if self.config.ros2 and not self.config.zenoh_floor:
-            from teleop_force.service.ros2_edge import Ros2Edge  # rosbags: with --ros2 only
-
-            self._ros2 = Ros2Edge(
-                session, device, self.n_joints, self._estimate_guarded, self._count_malformed
-            )
+        edge = self._ros2 = Ros2Edge(
+            session, device, self.n_joints, self._estimate_guarded, self._count_malformed
+        )
         watch = self.residual_watch
         if watch is not None:
-            diagnostics = session.declare_publisher(keys.service_diagnostics(device))
-            self._entities.append(diagnostics)
-            watch.start(
-                diagnostics.put if self._ros2 is None else self._diagnostics_both(diagnostics)
-            )
+            watch.start(edge.publish_service_diagnostics)
         self._control_thread = threading.Thread(
             target=self._serve_controls, name="controls", daemon=True
         )
         self._control_thread.start()
         if self.config.zenoh_floor:
-            self._entities.append(
-                declare_subscriber(session, self._own_js_key, self._on_own_js_floor, direct=True)
-            )
+            edge.subscribe(self._on_own_js_floor)
             if self.config.record_path is not None:
                 self._subscribe_recorded(self._on_recorded_floor)
         else:
-            if self._ros2 is not None:  # the ROS JointState only: one sample published twice
-                self._ros2.subscribe()  # is estimated on once
-            else:
-                self._entities.append(
-                    declare_subscriber(session, self._own_js_key, self._on_own_js, direct=True)
-                )
+            edge.subscribe()
             if self.recording.recorder is not None:
                 self._subscribe_recorded(self._on_recorded)
         self._entities.append(
@@ -366,23 +345,13 @@ class ForceService:
         self._started_s = time.perf_counter()
         return self
 
-    def _diagnostics_both(self, publisher: zenoh.Publisher) -> Any:
-        """Return the watch's publish callback with ``--ros2``: the JSON, then the ROS report."""
-        edge = self._ros2
-
-        def publish(payload: bytes) -> None:
-            publisher.put(payload)
-            if edge is not None:
-                edge.publish_service_diagnostics(payload)
-
-        return publish
-
     def close(self) -> None:
         """Stop processing, undeclare everything, then close the recording (idempotent).
 
-        The inputs go first; the publisher is undeclared under the estimator's lock, so no
-        receive thread is publishing on it then (a callback that comes after sees the service
-        closed). The recorder writes what was queued before it closes the file.
+        The inputs go first; the ROS 2 node (its subscription and publishers) is undeclared
+        under the estimator's lock, so no receive thread is publishing then (a callback that
+        comes after sees the service closed). The recorder writes what was queued before it
+        closes the file.
         """
         with self._lock:
             already = self._closed
@@ -394,8 +363,8 @@ class ForceService:
         undeclare_all(*reversed(entities), *recorded)
         with self._lock:
             edge, self._ros2 = self._ros2, None
-        if edge is not None:
-            edge.close()
+            if edge is not None:
+                edge.close()
         if already:
             return
         if self._control_thread is not None:
@@ -403,9 +372,6 @@ class ForceService:
             self._control_thread.join(DRAIN_TIMEOUT_S)
         with self._lock:
             self.adaptation_state.close()  # the adaptation worker's thread
-        with self._lock:
-            publisher, self._publisher = self._publisher, None
-            undeclare_all(publisher)
         recorder = self.recording.recorder
         if recorder is not None:
             recorder.close()
@@ -421,24 +387,17 @@ class ForceService:
 
     # -- callbacks ----------------------------------------------------------------------------
 
-    def _on_own_js(self, sample: zenoh.Sample) -> None:
-        """Estimate on the device's joint state, in this receive thread, and publish.
+    def _estimate_guarded(self, msg: m.JointState, attachment: Attachment, arrival_ns: int) -> None:
+        """Estimate on one JointState of the device, in the receive thread, and publish.
 
         One step costs microseconds (the compiled estimator), so it runs here: no queue, no
-        thread hop, no message object. Nothing may escape a receive thread: an unexpected
-        error is counted (and logged once per kind) and the next joint state is estimated on.
+        thread hop. Nothing may escape a receive thread: an unexpected error is counted (and
+        logged once per kind) and the next joint state is estimated on.
         """
-        arrival_ns = time.time_ns()
-        if self._closed:
-            return
-        self._estimate_guarded(sample.payload.to_bytes(), arrival_ns)
-
-    def _estimate_guarded(self, payload: bytes, arrival_ns: int) -> None:
-        """Estimate on one wire JointState of the device (:meth:`_on_own_js`, the ROS 2 edge)."""
         if self._closed:
             return
         try:
-            self._on_joint_state(self._own_js_key, payload, arrival_ns)
+            self._on_joint_state(msg, attachment)
         except Exception as exc:  # nothing may stop the estimation
             # TeleopForceError: e.g. the session went away under us; anything else is a bug,
             # logged once per kind, and the next joint state is estimated on regardless.
@@ -463,11 +422,11 @@ class ForceService:
                 declare_subscriber(self.session, keys.any_device(kind), callback, direct=True)
             )
 
-    def _on_own_js_floor(self, sample: zenoh.Sample) -> None:
-        """Zenoh floor (``zenoh_floor``): publish a fixed estimate-sized payload, nothing else."""
-        publisher = self._publisher
-        if publisher is not None and not self._closed:
-            put(publisher, self._floor_payload)
+    def _on_own_js_floor(self, payload: bytes, attachment: Attachment) -> None:
+        """Zenoh floor (``zenoh_floor``): publish a fixed estimate-sized pair, nothing else."""
+        edge = self._ros2
+        if edge is not None and not self._closed:
+            edge.publish_payloads(*self._floor_payloads)
             self._floor_received += 1
 
     def _on_recorded_floor(self, sample: zenoh.Sample) -> None:
@@ -477,36 +436,38 @@ class ForceService:
         with self._lock:
             self.malformed.count(key, exc)
 
-    def _on_joint_state(self, key: str, payload: bytes, arrival_ns: int) -> None:
-        """Check one joint-state payload, estimate on it, publish, hand both to the recorder."""
+    def _on_joint_state(self, msg: m.JointState, attachment: Attachment) -> None:
+        """Check one joint state, estimate on it, publish, hand both to the residual watch."""
+        seq = msg.seq
         try:
-            seq, t_ns, n, values = m.unpack_joint_state(payload)
+            n = len(msg.q_rad)
             if n != self.n_joints:
                 raise MessageError(f"{n} joints, the model has {self.n_joints}")
+            values = (*msg.q_rad, *msg.qd_rad_s, *msg.effort_nm)
             limit = MAX_ABS_JOINT_VALUE
             if not all(-limit <= x <= limit for x in values):
                 raise MessageError(f"a value is beyond +-{limit:g} (seq {seq})")
         except MessageError as exc:
-            self._count_malformed(key, exc)
+            self._count_malformed(self._own_js_topic, exc)
             return
         watch = self.residual_watch
         with self._lock:
-            estimate = self._estimate_locked(seq, t_ns, values)
+            estimate = self._estimate_locked(msg, attachment, values)
             if estimate is not None and watch is not None:
-                watch.append(payload, estimate[0])  # two stores into its ring, nothing else
-        recorder = self.recording.recorder  # read once: a control request may stop it meanwhile
-        if recorder is not None:  # written by the recorder's thread, off this one
-            recorder.submit(key, payload, arrival_ns)
-            if estimate is not None:
-                recorder.submit(self._estimate_key, *estimate)
+                # the watch's ring keeps fixed-layout records, decoded in bulk by its thread
+                joint_state = m.pack_joint_state(seq, msg.t_ns, *(values[k * n : (k + 1) * n]
+                                                                  for k in range(3)))  # fmt: skip
+                watch.append(joint_state, estimate)  # two stores into its ring, nothing else
 
     def _estimate_locked(
-        self, seq: int, t_ns: int, values: tuple[float, ...]
-    ) -> tuple[bytes, int] | None:
-        """Estimate on one joint state and publish; return the payload and its publish time."""
+        self, msg: m.JointState, attachment: Attachment, values: tuple[float, ...]
+    ) -> bytes | None:
+        """Estimate on one joint state and publish; return the watch's record of it."""
         started_s = time.perf_counter()
-        if self._closed or self._publisher is None:
+        edge = self._ros2
+        if self._closed or edge is None:
             return None
+        seq, t_ns = msg.seq, msg.t_ns
         event = self.joint_states.seqs.observe(seq)
         if event.duplicate:
             return None
@@ -540,20 +501,24 @@ class ForceService:
             stream.reset()
             return None
         weight = out[3 + 3 * n : 3 + 4 * n]
-        mask = 0
-        for j in range(n):
-            if weight[j] >= TRAINED_GROUND_WEIGHT:
-                mask |= 1 << j
+        trained = [w >= TRAINED_GROUND_WEIGHT for w in weight]
         published_ns = time.time_ns()
-        payload = m.pack_force_estimate(
-            counters.published & SEQ_MASK, published_ns, seq, n,
-            [*force, *out[3 : 3 + n], *weight, *out[3 + n : 3 + 3 * n]], mask,
+        tau_ext, motor, model = out[3 : 3 + n], out[3 + n : 3 + 2 * n], out[3 + 2 * n : 3 + 3 * n]
+        edge.publish_estimate(
+            published_ns, attachment.sequence_number, force, tau_ext, weight, trained, motor,
+            model,
         )  # fmt: skip
-        put(self._publisher, payload)
-        if self._ros2 is not None:
-            self._ros2.publish_estimate(payload)
-        counters.count_published(seq, force, mask, n, out[3 + 4 * n] != 0.0, t_ns, started_s)
-        return payload, published_ns
+        mask = sum(1 << j for j in range(n) if trained[j])
+        estimate_seq = counters.published & SEQ_MASK
+        counters.count_published(
+            seq, force, mask, n, out[3 + 4 * n] != 0.0, attachment.source_timestamp_ns, started_s
+        )
+        if self.residual_watch is None:
+            return None
+        return m.pack_force_estimate(
+            estimate_seq, published_ns, seq, n,
+            [*force, *tau_ext, *weight, *motor, *model], mask,
+        )  # fmt: skip
 
     def _recording_path(self) -> str | None:
         """Return the file the service records to, if it does (for the watch's command)."""
@@ -867,11 +832,7 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument(
         "--no-residual-watch", action="store_true",
-        help="do not run the residual watch (omni/<device>/service/diagnostics)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ros2", action="store_true",
-        help="also a ROS 2 node on rmw_zenoh's keys: /<device>/measured_js in, estimates out",
+        help="do not run the residual watch (/<device>/service/diagnostics)",
     )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
@@ -902,7 +863,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             zenoh_floor=args.zenoh_floor,
             residual_watch=not args.no_residual_watch,
             adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
-            ros2=args.ros2,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:

@@ -1,38 +1,39 @@
-"""The estimation service's ROS 2 edge (``--ros2``): rmw_zenoh JointState in, estimates out.
+"""The estimation service's ROS 2 node: rmw_zenoh JointStates in, estimates out.
 
 A ROS 2 node ``teleop_force_service`` on the service's session, as rmw_zenoh declares one
 (:mod:`teleop_force.ros2.node`): it subscribes to ``/<device>/measured_js``
 (``sensor_msgs/msg/JointState``, any type hash) and publishes every estimate as
 ``geometry_msgs/msg/WrenchStamped`` on ``/<device>/estimated_cf`` and
-``teleop_force_msgs/msg/EstimateDiagnostics`` on ``/<device>/estimate_diagnostics``, and
-each report of the residual watch as ``teleop_force_msgs/msg/ServiceDiagnostics`` on
-``/<device>/service/diagnostics``.
+``teleop_force_msgs/msg/EstimateDiagnostics`` on ``/<device>/estimate_diagnostics`` (one
+header stamp), and each report of the residual watch as
+``teleop_force_msgs/msg/ServiceDiagnostics`` on ``/<device>/service/diagnostics``.
 
 A received JointState must be in the model's coordinates: its names are empty or the
 model's (:func:`teleop_force.ros2.topics.model_joint_names`); the Omni driver's ``waist,
 shoulder, elbow`` (a relative elbow) or any other names are counted as malformed under the
-ROS key and dropped, as are payloads that do not parse. An accepted one enters the service
-as the wire JointState it replaces, with the attachment's sequence number (modulo 2**32) as
-its ``seq``: loss and duplicates are counted from rmw_zenoh's sequence numbers.
+topic's name and dropped, as are payloads that do not parse and samples without a valid
+attachment (:attr:`Ros2Edge.malformed_attachments`).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Final
 
 import zenoh
 
 from teleop_force.errors import MessageError
-from teleop_force.ros2 import codec, topics
+from teleop_force.ros2 import codec, streams, topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport import messages as m
 
 #: The node's name (namespace ``/``).
 NODE_NAME: Final = "teleop_force_service"
-_SEQ_MASK: Final = 0xFFFF_FFFF
+
+#: ``on_joint_state(message, attachment, arrival_ns)``: one accepted JointState.
+JointStateCallback = Callable[[m.JointState, Attachment, int], None]
 
 
 class Ros2Edge:
@@ -43,19 +44,20 @@ class Ros2Edge:
         session: zenoh.Session,
         device: str,
         n_joints: int,
-        on_joint_state: Callable[[bytes, int], None],
+        on_joint_state: JointStateCallback,
         count_malformed: Callable[[str, Exception], None],
     ) -> None:
         """Declare the node and its publishers; :meth:`subscribe` starts the input.
 
-        ``on_joint_state(wire_payload, arrival_ns)`` gets every accepted JointState as the
-        wire message; ``count_malformed(key, error)`` every refused one.
+        ``count_malformed(topic, error)`` gets every refused JointState.
         """
         self.device = topics.validate_device(device)
+        self.n_joints = n_joints
         self.names = topics.model_joint_names(n_joints)
+        self.joint_state_topic = topics.topic_name(device, topics.MEASURED_JS)
         self._on_joint_state = on_joint_state
         self._count_malformed = count_malformed
-        codec.warm_up()  # before the node and its subscription exist
+        codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
         self.node = Node(session, NODE_NAME)
         self.estimates = self.node.publisher(
             topics.topic_name(device, topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type
@@ -70,12 +72,15 @@ class Ros2Edge:
         )
         self.joint_states: Subscription | None = None
 
-    def subscribe(self) -> None:
-        """Declare the subscription to ``/<device>/measured_js``: estimation starts."""
+    def subscribe(self, raw: Callable[[bytes, Attachment], None] | None = None) -> None:
+        """Declare the subscription to ``/<device>/measured_js``: estimation starts.
+
+        ``raw``: hand every sample to it undecoded instead (the Zenoh floor of the bench).
+        """
         self.joint_states = self.node.subscription(
-            topics.topic_name(self.device, topics.MEASURED_JS),
+            self.joint_state_topic,
             topics.MEASURED_JS.ros_type,
-            self._on_sample,
+            self._on_sample if raw is None else raw,
             direct=True,
         )
 
@@ -92,27 +97,34 @@ class Ros2Edge:
     def _on_sample(self, payload: bytes, attachment: Attachment) -> None:
         arrival_ns = time.time_ns()
         try:
-            msg, named = codec.decode_joint_state(payload, attachment.sequence_number & _SEQ_MASK)
-            if named.names and named.names != self.names:
-                raise MessageError(
-                    f"joint names {list(named.names)} are not the model's {list(self.names)}"
-                    + (
-                        " (the driver's relative elbow)"
-                        if named.names == topics.DRIVER_JOINT_NAMES
-                        else ""
-                    )
-                )
+            msg, named = codec.decode_joint_state(payload, attachment.sequence_number & 0xFFFF_FFFF)
+            streams.check_joint_names(named.names, self.names)
         except MessageError as exc:
-            self._count_malformed(topics.topic_name(self.device, topics.MEASURED_JS), exc)
+            self._count_malformed(self.joint_state_topic, exc)
             return
-        self._on_joint_state(msg.encode(), arrival_ns)
+        self._on_joint_state(msg, attachment, arrival_ns)
 
-    def publish_estimate(self, wire_estimate: bytes) -> None:
-        """Publish one estimate (the service's wire ForceEstimate) as its two ROS messages."""
-        estimate = m.decode(wire_estimate)
-        if not isinstance(estimate, m.ForceEstimateMessage):
-            raise MessageError(f"not a ForceEstimate: {type(estimate).__name__}")
-        wrench, diagnostics = codec.encode_estimate(estimate, self.names, topics.BASE_FRAME)
+    def publish_estimate(
+        self,
+        t_ns: int,
+        source_sequence: int,
+        force_n: Sequence[float],
+        tau_ext_nm: Sequence[float],
+        coverage_weight: Sequence[float],
+        on_trained_ground: Sequence[bool],
+        tau_motor_filtered_nm: Sequence[float],
+        tau_model_filtered_nm: Sequence[float],
+    ) -> None:
+        """Publish one estimate as its WrenchStamped, then its EstimateDiagnostics."""
+        wrench, diagnostics = codec.encode_estimate_parts(
+            t_ns, source_sequence, force_n, tau_ext_nm, coverage_weight, on_trained_ground,
+            tau_motor_filtered_nm, tau_model_filtered_nm, self.names, topics.BASE_FRAME,
+        )  # fmt: skip
+        self.estimates.publish(wrench, t_ns)
+        self.diagnostics.publish(diagnostics, t_ns)
+
+    def publish_payloads(self, wrench: bytes, diagnostics: bytes) -> None:
+        """Publish an estimate already encoded (the Zenoh floor's fixed one)."""
         self.estimates.publish(wrench)
         self.diagnostics.publish(diagnostics)
 
