@@ -467,10 +467,16 @@ class _Monitor:
         with self._lock:
             for subscription, handle in self._subscriptions:
                 while (received := subscription.try_recv()) is not None:
-                    try:
-                        handle(*received)
-                    except MessageError:
-                        self.malformed += 1
+                    self.take(handle, *received)
+
+    def take(
+        self, handle: Callable[[bytes, Attachment], None], payload: bytes, attachment: Attachment
+    ) -> None:
+        """Hand one sample to ``handle``; a sample that does not decode is counted, dropped."""
+        try:
+            handle(payload, attachment)
+        except MessageError:
+            self.malformed += 1
 
     def close(self) -> None:
         """Stop the worker thread after a last drain, then undeclare the node."""

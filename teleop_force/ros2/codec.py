@@ -78,7 +78,7 @@ def _deserialize(payload: bytes | bytearray | memoryview, ros_type: str) -> Any:
 
 def _names(names: Sequence[str], n: int) -> list[str]:
     result = [str(x) for x in names]
-    if len(result) != n:
+    if result and len(result) != n:  # none (ROS allows it) or one per joint
         raise MessageError(f"{len(result)} joint names for {n} joints")
     return result
 

@@ -1,4 +1,4 @@
-"""The master's and slave's loops publish valid messages (fast packers) and follow as before."""
+"""The master's and slave's loops publish valid ROS 2 messages and follow as before."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ from master_slave.realtime import LoopConfig
 from master_slave.safety import SafetyConfig, SafetyMonitor
 from master_slave.slave import SetpointInbox, SlaveConfig, SlaveProcess, slew_toward
 from teleop_force.process.lifetime import StopSignal
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.transport import messages as m
 from teleop_force.transport.session import ZenohOptions
 
@@ -21,22 +23,38 @@ LOOP = LoopConfig(rate_hz=1000.0, timer_slack_ns=0)
 RUN = RunConfig(duration_s=TICKS / 1000.0)
 
 
-class Publisher:
+GID = bytes(range(16))
+NAMES = topics.OMNI_MODEL_JOINT_NAMES
+
+
+class FakeOutputs:
+    """What the loops publish, as the CDR payloads Ros2Outputs would put (no Zenoh)."""
+
     def __init__(self) -> None:
-        self.payloads: list[bytes] = []
+        self.joint_states: list[bytes] = []
+        self.setpoints: list[bytes] = []
+        self.true_forces: list[bytes] = []
+        self.statuses: list[m.Status] = []
 
-    def put(self, payload: bytes) -> None:
-        self.payloads.append(bytes(payload))
+    def joint_state(self, t_ns, q, qd, effort) -> None:
+        self.joint_states.append(codec.encode_joint_state_parts(t_ns, NAMES, "", q, qd, effort))
+
+    def setpoint(self, t_ns, q) -> None:
+        self.setpoints.append(codec.encode_joint_state_parts(t_ns, NAMES, "", q, (), ()))
+
+    def true_force(self, t_ns, force_n) -> None:
+        self.true_forces.append(codec.encode_wrench(t_ns, force_n, topics.BASE_FRAME))
+
+    def status(self, msg: m.Status) -> None:
+        self.statuses.append(msg)
 
 
-class FakeSample:
-    def __init__(self, payload: bytes) -> None:
-        self.payload = self
+def setpoint_payload(q) -> bytes:
+    return codec.encode_joint_setpoint(m.JointSetpoint(0, time.time_ns(), tuple(q)), NAMES)
 
-        def to_bytes() -> bytes:
-            return payload
 
-        self.to_bytes = to_bytes
+def attachment(seq: int) -> Attachment:
+    return Attachment(seq, time.time_ns(), GID)
 
 
 def test_slew_toward_moves_each_joint_by_at_most_the_step():
@@ -50,16 +68,16 @@ def test_slew_toward_moves_each_joint_by_at_most_the_step():
 def test_setpoint_inbox_keeps_the_latest_and_counts_the_rest():
     inbox = SetpointInbox()
     assert inbox.latest() == (None, None, 0)
-    now_ns = time.time_ns()
-    inbox.on_sample(FakeSample(m.JointSetpoint(1, now_ns, [0.1, 0.2, 0.3]).encode()))
-    inbox.on_sample(FakeSample(m.JointSetpoint(3, now_ns, [0.4, 0.5, 0.6]).encode()))
-    inbox.on_sample(FakeSample(b"TF\x01\x02garbage"))
-    inbox.on_sample(FakeSample(m.JointSetpoint(4, now_ns, [0.1, 0.2]).encode()))  # 2 joints
+    inbox.on_sample(setpoint_payload([0.1, 0.2, 0.3]), attachment(1))
+    inbox.on_sample(setpoint_payload([0.4, 0.5, 0.6]), attachment(3))
+    inbox.on_sample(b"\x00\x01\x00\x00garbage", attachment(4))
+    two = codec.encode_joint_setpoint(m.JointSetpoint(0, 1, (0.1, 0.2)), ())
+    inbox.on_sample(two, attachment(5))  # 2 joints
     q, arrival_s, count = inbox.latest()
     assert q == (0.4, 0.5, 0.6) and count == 2 and arrival_s is not None
     stats = inbox.stats()
     assert stats["valid"] == 2 and stats["lost"] == 1 and stats["malformed"] == 2
-    assert "2 joints" in stats["last_malformed"]
+    assert "2" in stats["last_malformed"]
     assert stats["latency_ms"]["count"] == 2
 
 
@@ -81,16 +99,18 @@ def test_slave_loop_publishes_joint_states_and_true_forces_of_the_same_ticks():
     q0 = slave.plant.measured_q_rad()
     target = q0 + np.array([0.01, -0.01, 0.005])
     for k in range(12):  # enough fresh setpoints to follow
-        slave.inbox.on_sample(FakeSample(m.JointSetpoint(k, time.time_ns(), target).encode()))
-    js, cf = Publisher(), Publisher()
+        slave.inbox.on_sample(setpoint_payload(target), attachment(k + 1))
+    out = FakeOutputs()
     try:
-        slave._control_loop(js, cf)
+        slave._control_loop(out)
     finally:
         slave.plant.close()
-    states = [m.JointState.decode(p) for p in js.payloads]
-    forces = [m.ContactForce.decode(p) for p in cf.payloads]
+    states = [codec.decode_joint_state(p, 0) for p in out.joint_states]
+    assert all(named.names == NAMES for _, named in states)
+    states = [s for s, _ in states]
+    forces = [codec.decode_wrench(p) for p in out.true_forces]
     assert len(states) == len(forces) == TICKS
-    assert [s.seq for s in states] == [f.seq for f in forces] == list(range(TICKS))
+    assert all(f.frame_id == topics.BASE_FRAME for f in forces)
     assert [s.t_ns for s in states] == [f.t_ns for f in forces]
     assert np.all(np.diff([s.t_ns for s in states]) == 1_000_000)  # nominal stamps
     assert slave.safety.state == m.SafetyState.FOLLOWING
@@ -102,15 +122,14 @@ def test_slave_loop_publishes_joint_states_and_true_forces_of_the_same_ticks():
 
 def test_master_loop_publishes_setpoints_and_joint_states_it_read():
     master = MasterProcess(MasterConfig(loop=LOOP, run=RUN), ZenohOptions(), StopSignal())
-    setpoints, states = Publisher(), Publisher()
+    out = FakeOutputs()
     try:
-        master._control_loop(setpoints, states)
+        master._control_loop(out)
     finally:
         master.plant.close()
-    sp = [m.JointSetpoint.decode(p) for p in setpoints.payloads]
-    js = [m.JointState.decode(p) for p in states.payloads]
+    sp = [codec.decode_joint_setpoint(p, 0)[0] for p in out.setpoints]
+    js = [codec.decode_joint_state(p, 0)[0] for p in out.joint_states]
     assert len(sp) == len(js) == TICKS == master.published
-    assert [s.seq for s in sp] == [s.seq for s in js] == list(range(TICKS))
     assert all(a.q_rad == b.q_rad and a.t_ns == b.t_ns for a, b in zip(sp, js, strict=True))
     assert all(s.effort_nm == (0.0, 0.0, 0.0) for s in js)  # no haptic feedback
     assert master.loop.stats()["ticks"] == TICKS + 1  # the last wait ends the loop

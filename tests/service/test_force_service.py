@@ -14,14 +14,17 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import topics
 from teleop_force.service.adaptation import AdaptationGate
 from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.pubsub import query_json
+from tests.ros2_traffic import Collector, JointStatePublisher
 
 pytestmark = pytest.mark.zenoh
-DEVICE = "svc-test"
+DEVICE = "svc_test"
+JS_TOPIC = topics.topic_name(DEVICE, topics.MEASURED_JS)
 
 
 @pytest.fixture(scope="module")
@@ -56,12 +59,6 @@ def joint_states(n=300, seq0=0, t0_ns=1_700_000_000_000_000_000):
     ]
 
 
-def collect(session, key):
-    got = []
-    sub = session.declare_subscriber(key, lambda s: got.append(m.decode(s.payload.to_bytes())))
-    return got, sub
-
-
 def wait_until(predicate, timeout_s=10.0):
     deadline = time.monotonic() + timeout_s
     while not predicate():
@@ -72,28 +69,26 @@ def wait_until(predicate, timeout_s=10.0):
 def test_estimates_equal_the_offline_estimator_and_stats_add_up(session, model, tmp_path):
     record = tmp_path / "svc.mcap"
     service = ForceService(session, model, ServiceConfig(device=DEVICE, record_path=record)).start()
-    got, sub = collect(session, keys.estimated_cf(DEVICE))
-    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    got = Collector(session, DEVICE, topics.ESTIMATED_CF)
+    pub = JointStatePublisher(session, DEVICE)
     try:
         stream = joint_states()
         for js in stream[:100] + stream[102:]:  # two lost
-            pub.put(js.encode())
-        pub.put(b"garbage")
-        bad_version = bytearray(stream[0].encode())
-        bad_version[2] = 99
-        pub.put(bytes(bad_version))
-        pub.put(m.JointState(0, 0, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)).encode())  # 2 joints
+            pub.send(js)
+        pub.send_raw(b"garbage", 1000)
+        pub.send(stream[0], topics.DRIVER_JOINT_NAMES)  # the driver's relative elbow
+        pub.send(m.JointState(0, 0, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)), ())  # 2 joints
         wait_until(lambda: len(got) == 298)
         stats = query_json(session, keys.service_stats(DEVICE))
         served_model = query_json(session, keys.service_model(DEVICE))
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        got.close()
+        pub.close()
         service.close()
     assert stats["joint_states"]["received"] == 298
     assert stats["joint_states"]["lost"] == 2
     assert stats["malformed"]["dropped"] == 3
-    assert stats["malformed"]["by_key"] == {keys.measured_js(DEVICE): 3}
+    assert stats["malformed"]["by_key"] == {JS_TOPIC: 3}
     assert stats["estimates"]["published"] == 298
     assert stats["latency_ms"]["count"] == 298
     assert 0.0 <= stats["on_ground_fraction"] <= 1.0
@@ -101,7 +96,7 @@ def test_estimates_equal_the_offline_estimator_and_stats_add_up(session, model, 
     # Same floats as the estimator run offline on the same samples.
     offline = ForceEstimator(DynamicModel.load(DEFAULT_MODEL_PATH))
     t0 = stream[0].t_ns
-    for js, estimate in zip(stream[:100] + stream[102:], got, strict=True):
+    for js, estimate in zip(stream[:100] + stream[102:], got.messages, strict=True):
         expected = offline.update((js.t_ns - t0) * 1e-9, np.array(js.q_rad), np.array(js.effort_nm))
         assert estimate.source_seq == js.seq
         assert estimate.f_n == tuple(expected.force_tip_in_base_n)
@@ -116,25 +111,27 @@ def test_estimates_equal_the_offline_estimator_and_stats_add_up(session, model, 
 
 def test_a_stream_restart_resets_the_estimator(session, model):
     service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
-    got, sub = collect(session, keys.estimated_cf(DEVICE))
-    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    got = Collector(session, DEVICE, topics.ESTIMATED_CF)
+    pub = JointStatePublisher(session, DEVICE)
     try:
         first = joint_states(50)
         for js in first:
-            pub.put(js.encode())
+            pub.send(js)
         # The same samples again, later (a replay): seq goes back -> new stream.
         for js in joint_states(50, t0_ns=1_800_000_000_000_000_000):
-            pub.put(js.encode())
+            pub.send(js)
         wait_until(lambda: len(got) == 100)
         stats = service.stats()
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        got.close()
+        pub.close()
         service.close()
     assert stats["joint_states"]["restarts"] == 1
     assert stats["joint_states"]["stream_restarts"] == 1
     assert stats["joint_states"]["lost"] == 0
-    for a, b in zip(got[:50], got[50:], strict=True):  # bit-identical after the reset
+    for a, b in zip(
+        got.messages[:50], got.messages[50:], strict=True
+    ):  # bit-identical after the reset
         assert a.f_n == b.f_n or all(math.isnan(x) for x in a.f_n + b.f_n)
         assert a.tau_model_filtered_nm == b.tau_model_filtered_nm
 
@@ -163,21 +160,21 @@ def test_adaptation_runs_on_a_wavelet_network_model(session, cv_model):
     service = ForceService(session, wn_model, ServiceConfig(device=DEVICE)).start()
     # these synthetic joint states read as > 0.5 N on the untrained network: open the gate
     service.adaptation_state.gate = AdaptationGate(force_threshold_n=1e6, guard_s=0.0)
-    got, sub = collect(session, keys.estimated_cf(DEVICE))
-    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    got = Collector(session, DEVICE, topics.ESTIMATED_CF)
+    pub = JointStatePublisher(session, DEVICE)
     try:
         before = network.parameters.copy()
         session.put(keys.service_adapt(DEVICE), "on")
         wait_until(lambda: service.adaptation_state.enabled)
         for js in joint_states(200):
-            pub.put(js.encode())
+            pub.send(js)
         wait_until(lambda: len(got) == 200)
         session.put(keys.service_adapt(DEVICE), "off")
         wait_until(lambda: not service.adaptation_state.enabled)
         stats = service.stats()
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        got.close()
+        pub.close()
         service.close()
     assert stats["adaptation"]["available"] is True
     assert stats["adaptation"]["samples"] == 200
@@ -228,21 +225,21 @@ def test_stats_keep_their_keys(session, model):
 
 def test_estimate_seqs_count_on_across_stream_restarts(session, model):
     service = ForceService(session, model, ServiceConfig(device=DEVICE)).start()
-    got, sub = collect(session, keys.estimated_cf(DEVICE))
-    pub = declare_data_publisher(session, keys.measured_js(DEVICE))
+    got = Collector(session, DEVICE, topics.ESTIMATED_CF)
+    pub = JointStatePublisher(session, DEVICE)
     try:
         for js in joint_states(30) + joint_states(30, t0_ns=1_800_000_000_000_000_000):
-            pub.put(js.encode())
-        pub.put(joint_states(1, seq0=29, t0_ns=1_800_000_000_029_000_000)[0].encode())  # dup
+            pub.send(js)
+        pub.send(joint_states(1, seq0=29, t0_ns=1_800_000_000_029_000_000)[0])  # dup
         wait_until(lambda: len(got) == 60)
         time.sleep(0.05)
         stats = service.stats()
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        got.close()
+        pub.close()
         service.close()
-    assert [e.seq for e in got] == list(range(60))
-    assert [e.source_seq for e in got] == [*range(30), *range(30)]
+    assert [e.seq for e in got.messages] == list(range(1, 61))  # rmw_zenoh counts from 1
+    assert [e.source_seq for e in got.messages] == [*range(30), *range(30)]
     assert (
         stats["joint_states"]["duplicates"] == 1 and stats["joint_states"]["stream_restarts"] == 1
     )

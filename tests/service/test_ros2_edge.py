@@ -1,4 +1,4 @@
-"""The service's ROS 2 edge: rclpy-serialized JointStates in, rclpy-readable estimates out."""
+"""The service's ROS 2 node: rclpy-serialized JointStates in, rclpy-readable estimates out."""
 
 import math
 import queue
@@ -51,7 +51,7 @@ def model():
 
 def test_rclpy_joint_states_are_estimated_on_and_estimates_decode_with_rclpy(zenoh_pair, model):
     service = ForceService(
-        zenoh_pair.listener, model, ServiceConfig(device=DEVICE, ros2=True, residual_watch=False)
+        zenoh_pair.listener, model, ServiceConfig(device=DEVICE, residual_watch=False)
     ).start()
     client = Node(zenoh_pair.connector, "ros2_test_client", domain_id=graph.domain_id_from_env())
     wrenches: queue.Queue = queue.Queue()
@@ -93,19 +93,19 @@ def test_rclpy_joint_states_are_estimated_on_and_estimates_decode_with_rclpy(zen
         service.close()
 
 
-def test_a_device_id_that_is_no_ros_name_is_refused_with_ros2():
+def test_a_device_id_that_is_no_ros_name_is_refused():
     from teleop_force.errors import ConfigurationError
 
     with pytest.raises(ConfigurationError, match="ROS 2 name"):
-        ServiceConfig(device="svc-test", ros2=True)
-    assert ServiceConfig(device="svc-test").device == "svc-test"  # without --ros2 it may
+        ServiceConfig(device="svc-test")
+    assert ServiceConfig(device="svc_test").device == "svc_test"
 
 
 def test_residual_watch_reports_are_published_as_service_diagnostics(zenoh_pair):
     from teleop_force.service.ros2_edge import Ros2Edge
     from teleop_force.transport import messages as m
 
-    edge = Ros2Edge(zenoh_pair.listener, DEVICE, 3, lambda p, t: None, lambda k, e: None)
+    edge = Ros2Edge(zenoh_pair.listener, DEVICE, 3, lambda msg, a, t: None, lambda k, e: None)
     client = Node(zenoh_pair.connector, "ros2_test_client", domain_id=graph.domain_id_from_env())
     got: queue.Queue = queue.Queue()
     try:

@@ -22,14 +22,15 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.identification.filtered_regressor import FilterConfig
 from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import topics
 from teleop_force.service.controls import PROJECT_ROOT, model_folders, record_folders
 from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher
+from tests.ros2_traffic import Collector, JointStatePublisher
 from web.control import ServiceClient
 
-DEVICE = "ctl-test"
+DEVICE = "ctl_test"
 
 
 def joint_states(n: int, seq0: int = 0, t0_ns: int = 1_700_000_000_000_000_000) -> list:
@@ -91,21 +92,18 @@ def system(tree, zenoh_pair):
     model = DynamicModel.load(DEFAULT_MODEL_PATH)
     service = ForceService(service_session, model, config, model_path=DEFAULT_MODEL_PATH).start()
     client = ServiceClient(client_session, DEVICE, timeout_s=5.0)
-    got: list[m.ForceEstimateMessage] = []
-    sub = client_session.declare_subscriber(
-        keys.estimated_cf(DEVICE),
-        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
-    )
-    pub = declare_data_publisher(client_session, keys.measured_js(DEVICE))
+    collector = Collector(client_session, DEVICE, topics.ESTIMATED_CF)
+    got = collector.messages
+    pub = JointStatePublisher(client_session, DEVICE)
     wait_until(lambda: client.fetch_stats(timeout_s=1.0).ok, 20.0)
-    wait_until(lambda: pub.matching_status.matching, 10.0)
+    wait_until(lambda: pub.publisher.zenoh_publisher.matching_status.matching, 10.0)
     time.sleep(0.1)
     try:
         yield {"service": service, "client": client, "session": client_session, "got": got,
                "pub": pub, "tree": tree}  # fmt: skip
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        collector.close()
+        pub.close()
         service.close()
 
 
@@ -136,14 +134,14 @@ def test_a_model_is_loaded_between_samples_and_reported(system):
     before = joint_states(300)
     after = joint_states(300, seq0=300)
     for js in before:
-        pub.put(js.encode())
+        pub.send(js)
     wait_until(lambda: len(got) == 300)
     target = tree["models"] / "doubled.json"
     reply = client.request_model_load(target)
     assert reply.ok, reply.text
     assert reply.data == {"ok": True, "path": str(target.resolve()), "friction": "wn"}
     for js in after:
-        pub.put(js.encode())
+        pub.send(js)
     wait_until(lambda: len(got) == 600)
     st = stats(system)
     assert st["model"]["path"] == str(target.resolve()) and st["model"]["loads"] == 1
@@ -168,7 +166,7 @@ def test_loading_while_streaming_loses_nothing(system):
 
     def publish():
         for k, js in enumerate(stream):
-            pub.put(js.encode())
+            pub.send(js)
             if k % 4 == 0:
                 time.sleep(0.001)
         done.set()
@@ -231,7 +229,7 @@ def test_loads_outside_the_allowed_folders_or_of_bad_files_are_refused(system):
     assert st["malformed"]["by_key"] == {keys.service_model(DEVICE): len(bad_payloads)}
     # The service still runs its model and estimates.
     for js in joint_states(50):
-        system["pub"].put(js.encode())
+        system["pub"].send(js)
     wait_until(lambda: len(system["got"]) == 50)
     assert client.fetch_model().data == DynamicModel.load(DEFAULT_MODEL_PATH).to_dict()
 
@@ -248,7 +246,7 @@ def test_recording_starts_and_stops_on_request(system):
     assert not again.ok and "already recording" in again.text
     stream = joint_states(400)
     for js in stream:
-        pub.put(js.encode())
+        pub.send(js)
     session = system["session"]
     session.put(keys.setpoint_js("ctl-master"), m.JointSetpoint(0, 1, (0.0, 0.1, 0.2)).encode())
     wait_until(lambda: len(got) == 400)

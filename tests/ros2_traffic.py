@@ -1,0 +1,91 @@
+"""Tests' side of the live topics: publish and collect ROS 2 messages on a Zenoh session.
+
+The tests talk to the processes as any ROS 2 peer would: CDR payloads on rmw_zenoh's keys,
+with its attachment. :func:`put` chooses the attachment's sequence number itself (loss,
+duplicates and restarts are what the tests exercise); :class:`Collector` decodes what a
+process publishes with :mod:`teleop_force.ros2.streams`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from teleop_force.errors import MessageError
+from teleop_force.ros2 import codec, streams, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node, Publisher
+from teleop_force.transport import messages as m
+
+NAMES = topics.OMNI_MODEL_JOINT_NAMES
+
+
+def put(publisher: Publisher, payload: bytes, seq: int, source_ns: int | None = None) -> None:
+    """Put ``payload`` with an attachment of sequence number ``seq`` (chosen by the test)."""
+    stamp = time.time_ns() if source_ns is None else source_ns
+    attachment = Attachment(seq, stamp, publisher.gid)
+    publisher.zenoh_publisher.put(payload, attachment=attachment.encode())
+
+
+def joint_state_payload(js: m.JointState, names: Sequence[str] = NAMES) -> bytes:
+    """A ``sensor_msgs/msg/JointState`` of ``js`` (``names`` one per joint, or empty)."""
+    return codec.encode_joint_state(js, names if names else ())
+
+
+class JointStatePublisher:
+    """A node publishing ``/<device>/measured_js``; :meth:`send` uses the message's seq."""
+
+    def __init__(self, session: zenoh.Session, device: str, node_name: str = "test_driver"):
+        self.node = Node(session, node_name)
+        self.publisher = self.node.publisher(
+            topics.topic_name(device, topics.MEASURED_JS), topics.MEASURED_JS.ros_type
+        )
+
+    def send(self, js: m.JointState, names: Sequence[str] = NAMES) -> None:
+        put(self.publisher, joint_state_payload(js, names), js.seq)
+
+    def send_raw(self, payload: bytes, seq: int) -> None:
+        put(self.publisher, payload, seq)
+
+    def close(self) -> None:
+        self.node.close()
+
+
+class Collector:
+    """Every message of one topic of ``device``, decoded, in arrival order."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        device: str,
+        topic: topics.Topic,
+        node_name: str = "test_listener",
+        n_joints: int | None = None,
+    ):
+        self.messages: list[Any] = []
+        self.attachments: list[Attachment] = []
+        self.malformed: list[tuple[str, MessageError]] = []
+        self._lock = threading.Lock()
+        self.node = Node(session, node_name)
+        streams.subscribe(
+            self.node, device, topic, self._on_message, self._on_malformed, n_joints=n_joints
+        )
+
+    def _on_message(self, message: Any, attachment: Attachment) -> None:
+        with self._lock:
+            self.messages.append(message)
+            self.attachments.append(attachment)
+
+    def _on_malformed(self, topic: str, error: MessageError) -> None:
+        with self._lock:
+            self.malformed.append((topic, error))
+
+    def __len__(self) -> int:
+        return len(self.messages)
+
+    def close(self) -> None:
+        self.node.close()
