@@ -524,6 +524,32 @@ def fuzzed_payloads(n: int, seed: int = 0) -> list[bytes]:
     return out
 
 
+def ros2_seeds() -> list[bytes]:
+    """Valid CDR payloads of every live topic (3 and 9 joints), an attachment and a token."""
+    from teleop_force.ros2 import codec
+
+    nine = m.JointState(3, 1_700_000_000_000_000_000, tuple(np.linspace(-1, 1, 9)), (0.0,) * 9,
+                        (1e-3,) * 9)  # fmt: skip
+    return [*_ros2_seeds(), codec.encode_joint_state(nine, ()),
+            codec.encode_joint_setpoint(m.JointSetpoint(1, 2, (0.1,) * 9), ())]  # fmt: skip
+
+
+def fuzzed_ros2_payloads(n: int, seed: int = 0) -> list[bytes]:
+    """``n`` payloads: mutated valid CDR messages of every topic, random bytes, valid ones."""
+    rng = random.Random(seed)
+    seeds = ros2_seeds()
+    out = []
+    for k in range(n):
+        choice = k % 10
+        if choice == 0:
+            out.append(rng.randbytes(rng.randint(0, 120)))
+        elif choice == 1:
+            out.append(rng.choice(seeds))
+        else:
+            out.append(random_mutation(rng, rng.choice(seeds)))
+    return out
+
+
 def count(target_name: str, outcome: str, n: int = 1) -> None:
     """Add ``n`` inputs with ``outcome`` to :data:`COUNTS` (for targets fed in bulk)."""
     with _LOCK:

@@ -1,17 +1,15 @@
 """Fuzzed payloads over real Zenoh: the service and the slave count and drop them, and go on.
 
-The service (recording, so every recorded key is decoded too) runs on a loopback session; the
-test publishes mutated messages of every type on its keys from a second session, predicts
-which ones are malformed, and checks the service's counters and its recording against that.
-``TELEOP_FUZZ_EXAMPLES=N`` sets the number of payloads per key (default 400).
+The service runs on a loopback session; the test publishes mutated CDR messages of every
+topic on its ``/<device>/measured_js`` from a second session (a ROS 2 node), some without
+rmw_zenoh's attachment, predicts which ones are malformed, and checks the service's counters
+against that. ``TELEOP_FUZZ_EXAMPLES=N`` sets the number of payloads (default 400).
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,46 +19,33 @@ from hypothesis import strategies as st
 from master_slave.slave import SetpointInbox
 from teleop_force.errors import MessageError
 from teleop_force.identification.dynamic_model import DynamicModel
-from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import codec, streams, topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.pubsub import query_json
+from tests.ros2_traffic import Collector, JointStatePublisher
 
 from .strategies import mutate_bytes
-from .targets import count, fuzzed_payloads, message_examples
+from .targets import count, fuzzed_ros2_payloads, ros2_seeds
 
-DEVICE = "fuzz-slave"
+DEVICE = "fuzz_slave"
 N_PAYLOADS = int(os.environ.get("TELEOP_FUZZ_EXAMPLES") or 400)
+NAMES = topics.OMNI_MODEL_JOINT_NAMES
+#: Every this many payloads, one is sent without rmw_zenoh's attachment.
+NO_ATTACHMENT_EVERY = 37
 
 
 def own_joint_state_is_valid(payload: bytes) -> bool:
     try:
-        js = m.JointState.decode(payload)
+        js, named = codec.decode_joint_state(payload, 0)
+        streams.check_joint_names(named.names, NAMES)
     except MessageError:
         return False
     values = np.abs(np.array(js.q_rad + js.qd_rad_s + js.effort_nm))
     return js.n_joints == 3 and bool(np.all(values <= MAX_ABS_JOINT_VALUE))
-
-
-def recorded_outcomes(payloads: list[bytes]) -> tuple[int, int]:
-    """(written, malformed) for one recorded key: the first good message fixes its type."""
-    kind = None
-    written = malformed = 0
-    for payload in payloads:
-        try:
-            message = m.decode(payload)
-        except MessageError:
-            malformed += 1
-            continue
-        if kind is None:
-            kind = type(message)
-        if type(message) is not kind:
-            malformed += 1
-        else:
-            written += 1
-    return written, malformed
 
 
 def wait_until(predicate, timeout_s: float, what: str) -> None:
@@ -72,44 +57,34 @@ def wait_until(predicate, timeout_s: float, what: str) -> None:
 
 @pytest.mark.zenoh
 def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pair):
-    own = keys.measured_js(DEVICE)
-    others = [
-        keys.setpoint_js("fuzz-master"),
-        keys.measured_cf(DEVICE),
-        keys.status(DEVICE),
-        keys.measured_js("fuzz-other"),
-    ]
-    payloads = {key: fuzzed_payloads(N_PAYLOADS, seed=i) for i, key in enumerate([own, *others])}
-    expected_valid = sum(map(own_joint_state_is_valid, payloads[own]))
-    expected_recorded = {key: recorded_outcomes(payloads[key]) for key in others}
-    folder = Path(tempfile.mkdtemp(prefix="fuzz-service-"))
-    record = folder / "fuzz.mcap"
+    own = topics.topic_name(DEVICE, topics.MEASURED_JS)
+    payloads = fuzzed_ros2_payloads(N_PAYLOADS, seed=0)
+    bare = {k for k in range(N_PAYLOADS) if k % NO_ATTACHMENT_EVERY == 5}
+    expected_valid = sum(
+        own_joint_state_is_valid(p) for k, p in enumerate(payloads) if k not in bare
+    )
     service_session, session = zenoh_pair.listener, zenoh_pair.connector
     model = DynamicModel.load(DEFAULT_MODEL_PATH)
-    service = ForceService(
-        service_session, model, ServiceConfig(device=DEVICE, record_path=record)
-    ).start()
-    publishers = {key: declare_data_publisher(session, key) for key in payloads}
-    got: list[m.ForceEstimateMessage] = []
-    sub = session.declare_subscriber(
-        keys.estimated_cf(DEVICE),
-        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
-    )
+    service = ForceService(service_session, model, ServiceConfig(device=DEVICE)).start()
+    pub = JointStatePublisher(session, DEVICE)
+    got = Collector(session, DEVICE, topics.ESTIMATED_CF)
     try:
-        for pub in publishers.values():
-            wait_until(lambda p=pub: p.matching_status.matching, 20.0, "the service to subscribe")
+        wait_until(lambda: pub.publisher.zenoh_publisher.matching_status.matching, 20.0,
+                   "the service to subscribe")  # fmt: skip
         time.sleep(0.2)
-        for k in range(N_PAYLOADS):
-            for key, pub in publishers.items():
-                pub.put(payloads[key][k])
+        for k, payload in enumerate(payloads):
+            if k in bare:
+                pub.publisher.zenoh_publisher.put(payload)  # no attachment
+            else:
+                pub.send_raw(payload, k + 1)
 
         def stats():
             return query_json(session, keys.service_stats(DEVICE), 5.0)
 
         def settled():
             st_ = stats()
-            own_seen = st_["joint_states"]["received"] + st_["malformed"]["by_key"].get(own, 0)
-            return own_seen == N_PAYLOADS and st_["recording"]["backlog"] == 0
+            seen = st_["joint_states"]["received"] + st_["malformed"]["by_key"].get(own, 0)
+            return seen + service._ros2.malformed_attachments == N_PAYLOADS
 
         wait_until(settled, 60.0, "the service to process every payload")
         time.sleep(0.3)
@@ -120,45 +95,24 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pai
             q = (0.1, 0.8 + 1e-3 * k, 0.3)
             good = m.JointState(k, 1_800_000_000_000_000_000 + k * 1_000_000, q, (0.0,) * 3,
                                 (0.0, 0.1, 0.05))  # fmt: skip
-            publishers[own].put(good.encode())
+            pub.send(good)
         wait_until(lambda: len(got) >= n_before + 200, 30.0, "estimates after the fuzzing")
     finally:
-        sub.undeclare()
-        for pub in publishers.values():
-            pub.undeclare()
+        got.close()
+        pub.close()
         service.close()
     malformed = after_fuzz["malformed"]["by_key"]
-    assert malformed.get(own, 0) == N_PAYLOADS - expected_valid
+    assert malformed.get(own, 0) == N_PAYLOADS - len(bare) - expected_valid
     assert after_fuzz["joint_states"]["received"] == expected_valid
     js, est = after_fuzz["joint_states"], after_fuzz["estimates"]
     assert est["published"] + est["errors"] + js["duplicates"] == js["received"]
-    for key, (_written, bad) in expected_recorded.items():
-        assert malformed.get(key, 0) == bad, key
-    counts = SessionReader(record).message_counts
-    for key, (written, _bad) in expected_recorded.items():
-        assert counts.get(key, 0) == written, key
-    assert counts[own] == expected_valid + 200
-    count("service: fuzzed payloads over Zenoh", "malformed, counted", sum(
-        b for _, b in expected_recorded.values()) + N_PAYLOADS - expected_valid)  # fmt: skip
-    count("service: fuzzed payloads over Zenoh", "valid", sum(
-        w for w, _ in expected_recorded.values()) + expected_valid)  # fmt: skip
+    count("service: fuzzed payloads over Zenoh", "malformed, counted",
+          N_PAYLOADS - expected_valid)  # fmt: skip
+    count("service: fuzzed payloads over Zenoh", "valid", expected_valid)
 
 
-class FakeSample:
-    """What the slave's setpoint callback reads from a Zenoh sample."""
-
-    class _Payload:
-        def __init__(self, data: bytes) -> None:
-            self.data = data
-
-        def to_bytes(self) -> bytes:
-            return self.data
-
-    def __init__(self, data: bytes) -> None:
-        self.payload = self._Payload(data)
-
-
-_SETPOINT_SEEDS = [x.encode() for x in message_examples()]
+_SETPOINT_SEEDS = ros2_seeds()
+_GID = bytes(range(16))
 
 
 @settings(max_examples=N_PAYLOADS, deadline=None)
@@ -175,13 +129,14 @@ _SETPOINT_SEEDS = [x.encode() for x in message_examples()]
 def test_slave_counts_and_drops_fuzzed_setpoints(batch):
     inbox = SetpointInbox()
     valid = 0
-    for payload in batch:
+    for k, payload in enumerate(batch):
         try:
-            ok = m.JointSetpoint.decode(payload).n_joints == 3
+            setpoint, named = codec.decode_joint_setpoint(payload, 0)
+            ok = setpoint.n_joints == 3 and named.names in ((), NAMES)
         except MessageError:
             ok = False
         valid += ok
-        inbox.on_sample(FakeSample(payload))  # never raises
+        inbox.on_sample(payload, Attachment(k + 1, time.time_ns(), _GID))  # never raises
     stats = inbox.stats()
     assert stats["valid"] == valid
     assert stats["malformed"] == len(batch) - valid
