@@ -1,23 +1,19 @@
-"""Every Zenoh key expression used by teleop-force, in one place.
+"""The project's own Zenoh keys, in one place: controls, queryables and liveliness.
 
-Each key carries the id of the device it is about, so several arms can share one Zenoh network::
+The live data streams are ROS 2 topics on rmw_zenoh's keys (:mod:`teleop_force.ros2.topics`).
+What stays on the project's keys is JSON or a plain payload, per device::
 
-    omni/<device>/measured_js        JointState: t, q, qd, effort (= commanded motor torque)
-    omni/<device>/setpoint_js        JointSetpoint: master pose sent to the slave as joint targets
-    omni/<device>/measured_cf        ContactForce: ground-truth tip force (sensor or simulator)
-    omni/<device>/estimated_cf       ForceEstimate: estimated tip force and its diagnostics
-    omni/<device>/status             Status: safety state (following / holding) and reason
     omni/<device>/service/model      queryable: the model the estimator runs
     omni/<device>/service/stats      queryable: estimator statistics
     omni/<device>/alive/<role>       liveliness token of one process (master, slave, service...)
     omni/<device>/service/adapt      subscriber: payload "on" / "off" switches online adaptation
     omni/<device>/service/control    queryable: JSON requests (start / stop a recording)
-    omni/<device>/service/diagnostics  ServiceDiagnostics (JSON, ~1 Hz): the residual watch
     omni/<device>/stats/<role>       queryable: JSON statistics of one process (master, slave...)
 
-The same strings name the channels of a recorded MCAP session (see :mod:`mcap_session`).
-Device ids and roles are single key chunks: non-empty, without ``/`` or any of the Zenoh
-wildcard / reserved characters ``* $ # ?``, and without surrounding whitespace.
+The data kinds below (``omni/<device>/measured_js`` ...) name the channels of sessions
+recorded before the ROS 2 encoding (see :mod:`teleop_force.io.mcap_session`); nothing is
+published on them. Device ids and roles are single key chunks: non-empty, without ``/`` or any
+of the Zenoh wildcard / reserved characters ``* $ # ?``, and without surrounding whitespace.
 """
 
 from __future__ import annotations

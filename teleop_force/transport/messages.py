@@ -1,4 +1,9 @@
-"""Wire messages of teleop-force: versioned little-endian binary layouts, one class per message.
+"""The project's message values, one class per message, and their fixed binary layouts.
+
+On the wire every message is a ROS 2 message in CDR (:mod:`teleop_force.ros2.codec`); these
+classes are the values the processes work with. Their binary layouts below (the "TF" layouts)
+are fixed-size in-process records (the residual watch's ring, batch replays); nothing is
+published in them.
 
 Every message starts with the same 16-byte header, then its own fields. ``n`` is the joint
 count (1..255). Floats are IEEE-754 float64, integers little-endian. ``t_ns`` is the time the
