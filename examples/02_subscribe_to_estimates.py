@@ -1,65 +1,71 @@
-"""Subscribe to the force estimates over Zenoh and decode their bytes, without teleop_force.
+"""Subscribe to the force estimates over Zenoh and decode their CDR bytes, without teleop_force.
 
-A client in any language does the same: open a Zenoh session, subscribe to
-``omni/<device>/estimated_cf`` and unpack the little-endian layout of docs/wire_format.md.
-This one imports only ``zenoh`` and ``struct``.
+The estimates are ROS 2 ``geometry_msgs/msg/WrenchStamped`` messages on rmw_zenoh's key
+``<domain>/<device>/estimated_cf/geometry_msgs::msg::dds_::WrenchStamped_/<type hash>``, with
+rmw_zenoh's 33-byte attachment (sequence number, source time, publisher GID): see
+docs/wire_format.md. This client imports only ``zenoh`` and ``struct``, so a client in any
+language does the same with a Zenoh binding.
 
 Start something that publishes estimates, with a known endpoint, then this client::
 
     uv run teleop-force demo --headless --zenoh-port 7447
-    uv run teleop-force replay recordings/palpation_demo.mcap --with-service \
-        --listen tcp/127.0.0.1:7447                      # (either one)
-
     uv run python examples/02_subscribe_to_estimates.py --connect tcp/127.0.0.1:7447
 
-It prints every 100th estimate and stops after ``--count`` estimates (exit 0), or exits 1 if
-none arrives within ``--timeout`` seconds.
+It prints every 100th estimate (its sequence number, force and latency) and stops after
+``--count`` estimates (exit 0), or exits 1 if none arrives within ``--timeout`` seconds. The
+latency is this host's clock minus the publisher's: across hosts it means something only with
+synchronised clocks (chrony, PTP).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import queue
 import struct
 import sys
+import time
 from typing import NamedTuple
 
 import zenoh
 
-HEADER = struct.Struct("<2sBBIq")  # magic "TF", version, type, seq, t_ns: 16 bytes
-FORCE_ESTIMATE = 4
+ATTACHMENT = struct.Struct("<qqB16s")  # sequence number, source time [ns], 16, GID: 33 bytes
 
 
-class Estimate(NamedTuple):
-    """The fields of a ForceEstimate this client uses."""
+class Wrench(NamedTuple):
+    """A decoded WrenchStamped: header stamp, frame, force [N] and torque [N m]."""
 
-    seq: int
-    t_ns: int
-    source_seq: int
+    stamp_sec: int
+    stamp_nanosec: int
+    frame_id: str
     force_n: tuple[float, float, float]  # NaN: no estimate (Jacobian near singular)
-    tau_ext_nm: tuple[float, ...]
-    coverage_weight: tuple[float, ...]
-    on_trained_ground: tuple[bool, ...]
+    torque_nm: tuple[float, float, float]
 
 
-def decode_force_estimate(payload: bytes) -> Estimate | None:
-    """Decode a ForceEstimate v1, or return None if the bytes are anything else."""
-    if len(payload) < 21:
+def decode_wrench_stamped(payload: bytes) -> Wrench | None:
+    """Decode a CDR ``geometry_msgs/msg/WrenchStamped``, or return None if it is not one.
+
+    CDR: a 4-byte encapsulation header (``00 01``: little endian, ``00 00``: big endian, then
+    two option bytes), then the fields, each aligned to its own size counted from byte 4:
+    ``int32 sec``, ``uint32 nanosec``, the frame_id as a ``uint32`` length that counts the
+    NUL, its bytes and the NUL, padding to 8, then six ``float64`` (force x y z, torque x y z).
+    Bytes after the last field are ignored (some serializers leave slack there).
+    """
+    if len(payload) < 16 or payload[0] != 0 or payload[1] not in (0, 1):
         return None
-    magic, version, kind, seq, t_ns = HEADER.unpack_from(payload, 0)
-    if magic != b"TF" or version != 1 or kind != FORCE_ESTIMATE:
+    order = "<" if payload[1] == 1 else ">"
+    sec, nanosec, length = struct.unpack_from(order + "iII", payload, 4)
+    text_end = 16 + length
+    values_at = 4 + (text_end - 4 + 7) // 8 * 8  # the doubles start 8-aligned (from byte 4)
+    if length == 0 or values_at + 48 > len(payload) or payload[text_end - 1] != 0:
         return None
-    source_seq, n = struct.unpack_from("<IB", payload, 16)
-    mask_bytes = (n + 7) // 8
-    if n == 0 or len(payload) != 45 + 32 * n + mask_bytes:
+    try:
+        frame_id = payload[16 : text_end - 1].decode("utf-8")
+    except UnicodeDecodeError:
         return None
-    force_n = struct.unpack_from("<3d", payload, 21)
-    tau_ext_nm = struct.unpack_from(f"<{n}d", payload, 45)
-    coverage = struct.unpack_from(f"<{n}d", payload, 45 + 8 * n)
-    mask = int.from_bytes(payload[45 + 32 * n :], "little")
-    on_ground = tuple(bool(mask >> j & 1) for j in range(n))
-    return Estimate(seq, t_ns, source_seq, force_n, tau_ext_nm, coverage, on_ground)
+    values = struct.unpack_from(order + "6d", payload, values_at)
+    return Wrench(sec, nanosec, frame_id, values[:3], values[3:])
 
 
 def main() -> int:
@@ -77,26 +83,37 @@ def main() -> int:
     config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')  # loopback only
     config.insert_json5("scouting/multicast/enabled", "false")
 
-    inbox: queue.Queue[bytes] = queue.Queue()
-    key = f"omni/{args.device}/estimated_cf"
+    domain = os.environ.get("ROS_DOMAIN_ID", "").strip() or "0"
+    # `*` in the hash chunk: any type hash (Humble's rmw_zenoh puts TypeHashNotSupported there)
+    key = f"{domain}/{args.device}/estimated_cf/geometry_msgs::msg::dds_::WrenchStamped_/*"
+    inbox: queue.Queue[tuple[bytes, bytes | None, int]] = queue.Queue()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        extra = None if sample.attachment is None else sample.attachment.to_bytes()
+        inbox.put((sample.payload.to_bytes(), extra, time.time_ns()))
+
     with zenoh.open(config) as session:
-        session.declare_subscriber(key, lambda sample: inbox.put(sample.payload.to_bytes()))
+        session.declare_subscriber(key, on_sample)
         print(f"listening on {key} via {args.connect}", flush=True)
         received = 0
         while received < args.count:
             try:
-                estimate = decode_force_estimate(inbox.get(timeout=args.timeout))
+                payload, extra, arrived_ns = inbox.get(timeout=args.timeout)
             except queue.Empty:
                 print(f"no estimate within {args.timeout:g} s", file=sys.stderr)
                 return 1
-            if estimate is None:
-                continue  # not a ForceEstimate v1: drop it, as the project's receivers do
+            wrench = decode_wrench_stamped(payload)
+            if wrench is None or extra is None or len(extra) != ATTACHMENT.size:
+                continue  # not a WrenchStamped with rmw_zenoh's attachment: drop it
+            seq, source_ns, gid_length, _gid = ATTACHMENT.unpack(extra)
+            if gid_length != 16:
+                continue
             received += 1
             if received % 100 == 1:
-                fx, fy, fz = estimate.force_n
-                ground = "on" if all(estimate.on_trained_ground) else "off"
+                fx, fy, fz = wrench.force_n
                 text = "none" if math.isnan(fx) else f"({fx:+.3f}, {fy:+.3f}, {fz:+.3f}) N"
-                print(f"estimate {estimate.seq}: F = {text}, {ground} trained ground", flush=True)
+                latency_ms = (arrived_ns - source_ns) / 1e6
+                print(f"estimate {seq}: F = {text}, latency {latency_ms:.2f} ms", flush=True)
         print(f"received {received} estimates")
     return 0
 
