@@ -1,4 +1,4 @@
-"""The ROS 2 clients of docs/ros2.md, each run as a user would, against a ``--ros2`` service.
+"""The ROS 2 clients of docs/ros2.md, each run as a user would, against the service.
 
 The service estimates on rclpy-serialized JointStates published with rmw_zenoh's attachment;
 each client (nothing of this project imported) connects over 127.0.0.1 and prints forces.
@@ -56,7 +56,7 @@ def test_the_ros2_clients_of_the_docs_print_estimates(block: int) -> None:
     endpoint = listen_endpoint(free_tcp_port())
     session = open_session(ZenohOptions(mode="peer", listen=(endpoint,), multicast_scouting=False))
     model = DynamicModel.load(DEFAULT_MODEL_PATH)
-    service = ForceService(session, model, ServiceConfig(ros2=True, residual_watch=False)).start()
+    service = ForceService(session, model, ServiceConfig(residual_watch=False)).start()
     driver = Node(session, "test_driver", domain_id=0).publisher(
         topics.topic_name("slave", topics.MEASURED_JS), interfaces.JOINT_STATE
     )
