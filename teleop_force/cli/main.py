@@ -561,6 +561,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_residual(subparsers)
     _add_report_robots(subparsers)
     _add_demo(subparsers)
+    _add_serve(subparsers)
     _add_replay(subparsers)
     _add_export_json(subparsers)
     _add_bench(subparsers)
@@ -800,6 +801,24 @@ def _add_demo(subparsers: _Subparsers) -> None:
     p.set_defaults(run=_cmd_demo)
 
 
+def _serve(argv: Sequence[str]) -> int:
+    """``teleop-force serve ...``: the service process's own command line, in this process."""
+    from teleop_force.service import force_service
+
+    return force_service.main(argv, prog="teleop-force serve")
+
+
+def _add_serve(subparsers: _Subparsers) -> None:
+    p = subparsers.add_parser(
+        "serve",
+        help="the force-estimation service alone, against a live device (teleop-force serve "
+        "--help: its flags)",
+        add_help=False,
+    )
+    # Never parsed here: main() hands everything after "serve" to the service's own parser.
+    p.set_defaults(run=lambda args: _serve([]))
+
+
 def _add_replay(subparsers: _Subparsers) -> None:
     p = subparsers.add_parser("replay", help="publish a recorded session over Zenoh as if live")
     p.add_argument("recording", help="session .mcap")
@@ -1004,8 +1023,11 @@ def _add_generated_report(subparsers: _Subparsers) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    if words[:1] == ["serve"]:
+        return _serve(words[1:])
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(words)
     try:
         return int(args.run(args))
     except TeleopForceError as exc:

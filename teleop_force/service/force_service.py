@@ -112,6 +112,7 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.ros2 import codec, topics
+from teleop_force.ros2 import graph as ros2_graph
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.service.adaptation import (
     DEFAULT_FORCE_THRESHOLD_N,
@@ -160,6 +161,10 @@ DRAIN_TIMEOUT_S: Final = 10.0
 _RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
 #: A joint-state value (rad, rad/s, N m) beyond this is implausible: counted as malformed.
 MAX_ABS_JOINT_VALUE: Final = 1e6
+#: ROS 2's largest domain id (``ROS_DOMAIN_ID``: 0..232 on Linux, as DDS maps it to ports).
+MAX_DOMAIN_ID: Final = 232
+#: Without a joint state for this long, the service says so on stderr [s].
+INPUT_SILENCE_S: Final = 1.0
 
 
 @dataclass(frozen=True)
@@ -182,6 +187,7 @@ class ServiceConfig:
             no recording. ``teleop-force bench`` compares the service's CPU with it.
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
+        domain_id: The ROS domain of its topics (``None``: ``ROS_DOMAIN_ID``, default 0).
 
     """
 
@@ -196,6 +202,7 @@ class ServiceConfig:
     zenoh_floor: bool = False
     residual_watch: bool = True
     adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
+    domain_id: int | None = None
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -211,6 +218,10 @@ class ServiceConfig:
         object.__setattr__(self, "record_dirs", tuple(Path(d) for d in self.record_dirs))
         if not (math.isfinite(self.record_flush_s) and self.record_flush_s > 0.0):
             raise ConfigurationError(f"record_flush_s must be > 0, got {self.record_flush_s}")
+        if self.domain_id is not None and not 0 <= self.domain_id <= MAX_DOMAIN_ID:
+            raise ConfigurationError(
+                f"ROS domain id must be 0..{MAX_DOMAIN_ID}, got {self.domain_id}"
+            )
 
 
 class ForceService:
@@ -313,8 +324,9 @@ class ForceService:
         device = self.config.device
         session = self.session
         edge = self._ros2 = Ros2Edge(
-            session, device, self.n_joints, self._estimate_guarded, self._count_malformed
-        )
+            session, device, self.n_joints, self._estimate_guarded, self._count_malformed,
+            self.config.domain_id,
+        )  # fmt: skip
         watch = self.residual_watch
         if watch is not None:
             watch.start(edge.publish_service_diagnostics)
@@ -519,6 +531,16 @@ class ForceService:
             estimate_seq, published_ns, seq, n,
             [*force, *tau_ext, *weight, *motor, *model], mask,
         )  # fmt: skip
+
+    @property
+    def domain_id(self) -> int:
+        """The ROS domain the service's node is on."""
+        edge = self._ros2
+        if edge is not None:
+            return edge.node.domain_id
+        if self.config.domain_id is not None:
+            return self.config.domain_id
+        return ros2_graph.domain_id_from_env()
 
     def _recording_path(self) -> str | None:
         """Return the file the service records to, if it does (for the watch's command)."""
@@ -789,13 +811,13 @@ def load_model(path: Path | None) -> tuple[DynamicModel, Path]:
     return model, model_path
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the argument parser of ``python -m teleop_force.service.force_service``."""
+def build_parser(
+    prog: str = "python -m teleop_force.service.force_service",
+) -> argparse.ArgumentParser:
+    """Return the argument parser of the service (``teleop-force serve``)."""
     from teleop_force.transport.session import add_zenoh_arguments
 
-    parser = argparse.ArgumentParser(
-        prog="python -m teleop_force.service.force_service", description=__doc__.splitlines()[0]
-    )
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="slave", help="device to estimate on (default slave)")
     parser.add_argument("--master", default="master", help="master device id (recording metadata)")
     parser.add_argument(
@@ -834,6 +856,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-residual-watch", action="store_true",
         help="do not run the residual watch (/<device>/service/diagnostics)",
     )  # fmt: skip
+    parser.add_argument(
+        "--ros-domain-id", type=int, default=None, metavar="D",
+        help="ROS 2 domain of the device's topics (default: $ROS_DOMAIN_ID, else 0)",
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
         "--stats-json", default=None, metavar="PATH", help="final stats (- = stdout)"
@@ -842,9 +868,42 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def wait_reporting_silence(
+    service: ForceService, stop: StopSignal, duration_s: float | None, endpoint: str
+) -> None:
+    """Wait for ``stop`` or ``duration_s``; say on stderr when no joint state came for 1 s.
+
+    One line when the input falls silent (or never started), one when it comes back.
+    """
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    topic = topics.topic_name(service.config.device, topics.MEASURED_JS)
+    seen, seen_at, silent = service.joint_states.rate.total, time.monotonic(), False
+    while True:
+        step = INPUT_SILENCE_S / 4
+        if deadline is not None:
+            step = min(step, deadline - time.monotonic())
+            if step <= 0.0:
+                return
+        if stop.wait(step):
+            return
+        now, count = time.monotonic(), service.joint_states.rate.total
+        if count != seen:
+            if silent:
+                log(ROLE, f"joint states on {topic} again")
+            seen, seen_at, silent = count, now, False
+        elif not silent and now - seen_at >= INPUT_SILENCE_S:
+            silent = True
+            what = "no joint state yet" if count == 0 else "no joint state"
+            log(
+                ROLE,
+                f"{what} on {topic} for {now - seen_at:.1f} s (is the driver publishing, on "
+                f"ROS domain {service.domain_id}, through {endpoint}?)",
+            )
+
+
+def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     """Run the service until SIGINT / SIGTERM or ``--duration``; return the exit status."""
-    args = build_parser().parse_args(argv)
+    args = (build_parser() if prog is None else build_parser(prog)).parse_args(argv)
     stop = StopSignal().install().watch_supervisor()
     use_realtime_switch_interval()
     try:
@@ -863,6 +922,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             zenoh_floor=args.zenoh_floor,
             residual_watch=not args.no_residual_watch,
             adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
+            domain_id=args.ros_domain_id,
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:
@@ -881,7 +941,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 ROLE,
                 f"estimating on {config.device} with {model_path.name} ({model.friction.kind})",
             )
-            stop.wait(args.duration)
+            wait_reporting_silence(service, stop, args.duration, _endpoints(args))
         finally:
             service.close()
         stats = service.stats()
@@ -900,6 +960,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{stats['malformed']['dropped']} malformed, {stats['estimates']['published']} estimates",
     )
     return 0
+
+
+def _endpoints(args: argparse.Namespace) -> str:
+    connect = list(getattr(args, "connect", None) or [])
+    return ", ".join(connect) if connect else "this machine's Zenoh peers"
 
 
 if __name__ == "__main__":

@@ -46,10 +46,12 @@ class Ros2Edge:
         n_joints: int,
         on_joint_state: JointStateCallback,
         count_malformed: Callable[[str, Exception], None],
+        domain_id: int | None = None,
     ) -> None:
         """Declare the node and its publishers; :meth:`subscribe` starts the input.
 
-        ``count_malformed(topic, error)`` gets every refused JointState.
+        ``count_malformed(topic, error)`` gets every refused JointState; ``domain_id``: the
+        ROS domain (``None``: ``ROS_DOMAIN_ID``, default 0).
         """
         self.device = topics.validate_device(device)
         self.n_joints = n_joints
@@ -58,7 +60,7 @@ class Ros2Edge:
         self._on_joint_state = on_joint_state
         self._count_malformed = count_malformed
         codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
-        self.node = Node(session, NODE_NAME)
+        self.node = Node(session, NODE_NAME, domain_id=domain_id)
         self.estimates = self.node.publisher(
             topics.topic_name(device, topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type
         )
