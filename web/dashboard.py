@@ -1,9 +1,10 @@
 """The teleop-force browser dashboard (viser): ``python -m web --device slave --port 8080``.
 
-A Zenoh client of the teleop system: it only subscribes to the keys of
-:mod:`teleop_force.transport.keys` and queries the service (:mod:`web.control`), so it works
-against the
-real system, a replay, or synthetic messages.
+A ROS 2 node on rmw_zenoh's keys (:data:`web.telemetry.NODE_NAME`): it subscribes to the
+slave's and the master's topics (:mod:`teleop_force.ros2.topics`, :mod:`web.telemetry`) and
+the service's residual watch (:mod:`web.residual_view`), and talks to the service over the
+project's JSON keys (:mod:`web.control`), so it works against the real system, a replay, or
+synthetic messages.
 
 Threads: Zenoh's callbacks append into ring buffers (:mod:`web.telemetry`); one render thread
 updates the banner, the 3D scene and the uPlot charts at ``--plot-hz`` (30) and Fig. 4 at
@@ -31,6 +32,8 @@ import zenoh
 
 from teleop_force.errors import TeleopForceError
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.node import Node
 from teleop_force.transport import keys
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -58,7 +61,7 @@ from web.coverage_view import Background, compose_frame, render_background
 from web.plots import LivePlots, newest_time, plot_frames
 from web.residual_view import DiagnosticsInbox, diagnostics_markdown
 from web.scene import OmniScene
-from web.stats import StreamSnapshot
+from web.stats import LATENCY_NOTE, StreamSnapshot
 from web.status import UNTRAINED_HOLD_S, TrustInputs, assess, banner_html
 from web.telemetry import (
     FE_COVERAGE,
@@ -66,6 +69,7 @@ from web.telemetry import (
     FE_TRAINED,
     JS_Q,
     JS_QD,
+    NODE_NAME,
     STREAMS,
     Subscriptions,
     Telemetry,
@@ -98,6 +102,8 @@ class DashboardConfig:
         """Validate ids and rates."""
         keys.validate_chunk(self.device)
         keys.validate_chunk(self.master_device, "master device id")
+        topics.validate_device(self.device)  # also a ROS 2 name token: /<device>/...
+        topics.validate_device(self.master_device)
         if not (0.5 <= self.plot_hz <= 120 and 0.2 <= self.fig_hz <= 30):
             raise TeleopForceError("plot-hz must be in [0.5, 120] and fig-hz in [0.2, 30]")
         if not (1.0 <= self.window_s <= 60.0 and 0.2 <= self.trail_s <= self.window_s):
@@ -138,6 +144,7 @@ class Dashboard:
         self.diagnostics = DiagnosticsInbox()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._node: Node | None = None
         self._subs: Subscriptions | None = None
         self._model_labels: dict[str, Path] = {}
         self._recording_labels: dict[str, Path] = {}
@@ -337,10 +344,12 @@ class Dashboard:
     # -- lifecycle ---------------------------------------------------------------------
 
     def start(self) -> None:
-        """Subscribe and start the render and service threads."""
+        """Declare the ROS 2 node, subscribe and start the render and service threads."""
         cfg = self.config
-        self._subs = Subscriptions(self._session, self.telemetry, cfg.device, cfg.master_device)
-        self.diagnostics.subscribe(self._session, cfg.device)
+        codec.warm_up()  # rosbags compiles each type on first use: not on the first sample
+        self._node = Node(self._session, NODE_NAME)
+        self._subs = Subscriptions(self._node, self.telemetry, cfg.device, cfg.master_device)
+        self.diagnostics.subscribe(self._node, cfg.device)
         for target, name in ((self._render_loop, "render"), (self._service_loop, "service")):
             thread = threading.Thread(target=target, daemon=True, name=f"dashboard-{name}")
             thread.start()
@@ -354,6 +363,8 @@ class Dashboard:
         if self._subs is not None:
             self._subs.close()
         self.diagnostics.close()
+        if self._node is not None:
+            self._node.close()
         self.replay.stop()
         self.server.stop()
 
@@ -443,7 +454,7 @@ class Dashboard:
         fe = tel.estimate.latest()
         cf = tel.contact.latest()
         true_force = None
-        if cf is not None and tel.stats["measured_cf"].snapshot(now).age_s < 0.5:
+        if cf is not None and tel.stats["true_cf"].snapshot(now).age_s < 0.5:
             true_force = cf[1]
         self.scene.update(
             None if js is None else js[1][JS_Q],
@@ -522,13 +533,14 @@ class Dashboard:
         )  # fmt: skip
 
     def _stats_markdown(self) -> str:
-        snaps = self.telemetry.snapshots()
+        subs = self._subs
+        snaps = self.telemetry.snapshots() if subs is None else subs.snapshots()
         rows = [
             "| stream | rate Hz | latency ms (mean/max) | lost | bad | age s |",
             "|---|---:|---:|---:|---:|---:|",
         ]
         rows += [_stats_row(name, snaps[name]) for name in STREAMS]
-        lines = ["\n".join(rows), ""]
+        lines = ["\n".join(rows), "", f"_{LATENCY_NOTE}_", ""]
         lines.append(f"Estimate age: {_age(self.telemetry.estimate_age_s())} s; "
                      f"tissue y = {self.scene.tissue_y_m:+.3f} m ({self._tissue_source}); "
                      f"replay: {self.replay.status()}")  # fmt: skip

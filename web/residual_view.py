@@ -1,7 +1,8 @@
 """The service's residual watch on the dashboard: its state, a finding and the command to run.
 
-:class:`DiagnosticsInbox` subscribes to ``omni/<device>/service/diagnostics`` (the service's
-:class:`~teleop_force.transport.messages.ServiceDiagnostics`, JSON, ~1 Hz) and keeps the latest
+:class:`DiagnosticsInbox` subscribes to the ROS 2 topic ``/<device>/service/diagnostics``
+(``teleop_force_msgs/msg/ServiceDiagnostics``, decoded to the project's
+:class:`~teleop_force.transport.messages.ServiceDiagnostics`, ~1 Hz) and keeps the latest
 report; :func:`diagnostics_markdown` renders it for the "Residual watch" folder: what the
 watch is doing, and on a persistent dependence the joint, the variable, its size and the
 command to run next (``teleop-force residual RECORDING --model MODEL``).
@@ -9,15 +10,13 @@ command to run next (``teleop-force residual RECORDING --model MODEL``).
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
-from typing import Any
-
-import zenoh
 
 from teleop_force.errors import MessageError
-from teleop_force.transport import keys
+from teleop_force.ros2 import streams, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport.messages import ServiceDiagnostics
 
 #: Older than this, the report is shown as stale [s] (the watch reports every second).
@@ -28,27 +27,31 @@ class DiagnosticsInbox:
     """The latest diagnostics of one device's service, written by a Zenoh callback."""
 
     def __init__(self) -> None:
-        """Start empty; :meth:`subscribe` declares the subscriber."""
+        """Start empty; :meth:`subscribe` declares the subscription."""
         self.latest: ServiceDiagnostics | None = None
         self.received_s = math.nan
-        self.malformed = 0
-        self._subscriber: Any = None
+        self._malformed = 0
+        self._subscriptions: list[Subscription] = []
 
-    def subscribe(self, session: zenoh.Session, device: str) -> DiagnosticsInbox:
-        """Subscribe to the device's diagnostics key; return self."""
-        self._subscriber = session.declare_subscriber(
-            keys.service_diagnostics(device), lambda s: self.on_payload(s.payload.to_bytes())
+    def subscribe(self, node: Node, device: str) -> DiagnosticsInbox:
+        """Subscribe on ``node`` to the device's diagnostics topic; return self."""
+        self._subscriptions = streams.subscribe(
+            node, device, topics.SERVICE_DIAGNOSTICS, self.on_message, self.on_malformed
         )
         return self
 
-    def on_payload(self, payload: bytes) -> None:
-        """Decode one report and keep it (a malformed one is counted and dropped)."""
-        try:
-            message = ServiceDiagnostics.decode(payload)
-        except MessageError:
-            self.malformed += 1
-            return
+    def on_message(self, message: ServiceDiagnostics, _attachment: Attachment) -> None:
+        """Keep one decoded report."""
         self.latest, self.received_s = message, time.perf_counter()
+
+    def on_malformed(self, _topic: str, _error: MessageError) -> None:
+        """Count one report that did not decode (it is dropped)."""
+        self._malformed += 1
+
+    @property
+    def malformed(self) -> int:
+        """Reports dropped: not decodable, or without a valid attachment."""
+        return self._malformed + sum(sub.malformed for sub in self._subscriptions)
 
     def age_s(self) -> float:
         """Seconds since the latest report (infinity before the first)."""
@@ -57,11 +60,10 @@ class DiagnosticsInbox:
         return time.perf_counter() - self.received_s
 
     def close(self) -> None:
-        """Undeclare the subscriber (idempotent)."""
-        subscriber, self._subscriber = self._subscriber, None
-        if subscriber is not None:
-            with contextlib.suppress(Exception):  # the session may already be closed
-                subscriber.undeclare()
+        """Undeclare the subscription (idempotent)."""
+        subscriptions, self._subscriptions = self._subscriptions, []
+        for sub in subscriptions:
+            sub.close()
 
 
 def diagnostics_markdown(message: ServiceDiagnostics | None, age_s: float = 0.0) -> str:

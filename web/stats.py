@@ -1,24 +1,36 @@
 """Per-stream receive statistics computed locally: rate, latency, lost and malformed messages.
 
-Lost messages are counted from ``seq`` gaps (:func:`teleop_force.transport.messages.sequence_gap`);
-a
-jump of more than :data:`RESTART_GAP` (or backwards) is taken as a publisher restart, not a
-loss. Latency is ``time.time_ns() - t_ns`` at arrival (meaningful on clock-synchronised
-machines). Rates and ages use ``time.perf_counter``.
+Everything comes from rmw_zenoh's attachment of each sample
+(:class:`~teleop_force.ros2.attachment.Attachment`), not from the message itself. Lost
+messages are counted from gaps in each publisher's sequence number (per GID: two publishers
+on one topic do not spoil each other's count). A publisher seen after the first one (a
+restarted process has a new GID), or a sequence number that goes backwards or jumps by more
+than :data:`RESTART_GAP` (a restart with the same GID), is counted as a restart, not a loss.
+Latency is ``time.time_ns()`` at arrival minus the attachment's source timestamp: across
+hosts it is meaningful only with synchronised clocks (chrony, PTP). Rates and ages use
+``time.perf_counter``.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
 
-from teleop_force.transport.messages import sequence_gap
+from teleop_force.ros2.attachment import Attachment
 
-#: A seq jump larger than this is a restart of the publisher, not lost messages.
+#: A sequence jump larger than this is a restart of the publisher, not lost messages.
 RESTART_GAP: Final = 1_000_000
+#: Publishers (GIDs) whose last sequence number is kept per stream, least recent dropped.
+MAX_PUBLISHERS: Final = 64
+#: Shown wherever latency is: what it is and when it means something.
+LATENCY_NOTE: Final = (
+    "Latency = arrival time - the publisher's source timestamp (rmw_zenoh attachment); "
+    "across hosts it needs synchronised clocks (chrony, PTP)."
+)
 _HISTORY: Final = 4096
 
 
@@ -28,9 +40,10 @@ class StreamSnapshot:
 
     Attributes:
         received: Messages decoded so far.
-        malformed: Messages that failed to decode (or had the wrong joint count).
-        lost: Messages missing from the ``seq`` sequence.
-        restarts: Publisher restarts seen (``seq`` jumped backwards or very far).
+        malformed: Messages dropped: no valid attachment, not decodable, wrong joint count.
+        lost: Messages missing from the publishers' sequence numbers.
+        restarts: Publishers seen after the first, and sequence numbers that went backwards
+            or jumped by more than :data:`RESTART_GAP`.
         rate_hz: Messages received in the last ``window_s`` seconds, per second.
         latency_ms_mean: Mean source-to-arrival latency over that window (NaN if none).
         latency_ms_max: Largest latency over that window (NaN if none).
@@ -60,23 +73,31 @@ class StreamStats:
         self._malformed = 0
         self._lost = 0
         self._restarts = 0
-        self._last_seq: int | None = None
+        self._last_seq: OrderedDict[bytes, int] = OrderedDict()  # per publisher GID
         self._last_arrival = -np.inf
         self._lock = threading.Lock()
 
-    def record(self, seq: int, t_ns: int, arrival_s: float, now_ns: int) -> None:
+    def record(self, attachment: Attachment, arrival_s: float, now_ns: int) -> None:
         """Count one decoded message (``arrival_s`` from perf_counter, ``now_ns`` wall clock)."""
+        seq, gid = attachment.sequence_number, attachment.gid
         with self._lock:
-            if self._last_seq is not None:
-                gap = sequence_gap(self._last_seq, seq)
-                if gap > RESTART_GAP:
+            last = self._last_seq.get(gid)
+            if last is None:
+                if self._last_seq:
+                    self._restarts += 1
+            else:
+                gap = seq - last - 1
+                if gap < 0 or gap > RESTART_GAP:
                     self._restarts += 1
                 else:
                     self._lost += gap
-            self._last_seq = seq
+                self._last_seq.move_to_end(gid)
+            self._last_seq[gid] = seq
+            if len(self._last_seq) > MAX_PUBLISHERS:
+                self._last_seq.popitem(last=False)
             i = self._next
             self._arrival[i] = arrival_s
-            self._latency_ms[i] = (now_ns - t_ns) / 1e6
+            self._latency_ms[i] = (now_ns - attachment.source_timestamp_ns) / 1e6
             self._next = (i + 1) % self._arrival.shape[0]
             self._received += 1
             self._last_arrival = arrival_s
@@ -112,4 +133,4 @@ class StreamStats:
         )
 
 
-__all__ = ["RESTART_GAP", "StreamSnapshot", "StreamStats"]
+__all__ = ["LATENCY_NOTE", "MAX_PUBLISHERS", "RESTART_GAP", "StreamSnapshot", "StreamStats"]

@@ -1,26 +1,34 @@
-"""Everything the dashboard receives over Zenoh, kept in ring buffers and counters.
+"""Everything the dashboard receives over ROS 2, kept in ring buffers and counters.
 
-The ``on_*`` handlers run on Zenoh's threads: they decode one message, append one row and
-update the counters -- nothing else (no drawing, no allocation beyond the decode). Times in
-the rings are the messages' own source stamps in seconds since the epoch (``t_ns * 1e-9``),
-so estimated and true forces line up whatever the transport delay; ages and rates use
-``time.perf_counter``.
+:class:`Subscriptions` makes the dashboard a ROS 2 node (:data:`NODE_NAME`) and subscribes
+with :func:`teleop_force.ros2.streams.subscribe` to the slave's ``measured_js``,
+``estimated_cf`` (with its ``estimate_diagnostics``), ``true_cf`` and ``status`` and the
+master's ``setpoint_js``. The ``on_*`` handlers of :class:`Telemetry` get one decoded message
+value and its rmw_zenoh attachment on a Zenoh callback thread: they append one row and update
+the counters -- nothing else (no drawing, no allocation beyond the row). Times in the rings
+are the messages' own header stamps in seconds since the epoch (``t_ns * 1e-9``), so
+estimated and true forces line up whatever the transport delay; loss and latency come from
+the attachment (:mod:`web.stats`); ages and rates use ``time.perf_counter``. A sample that
+does not decode, has the wrong joint count or no valid attachment is counted per stream as
+malformed and dropped.
 """
 
 from __future__ import annotations
 
-import contextlib
+import dataclasses
 import math
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Final
 
 import numpy as np
-import zenoh
 
-from teleop_force.transport import keys
+from teleop_force.errors import MessageError
+from teleop_force.ros2 import streams, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport.messages import (
     ContactForce,
     ForceEstimateMessage,
@@ -32,6 +40,8 @@ from teleop_force.transport.messages import (
 from web.buffers import RingBuffer
 from web.stats import StreamSnapshot, StreamStats
 
+#: The dashboard's ROS 2 node name.
+NODE_NAME: Final = "teleop_force_dashboard"
 #: The Omni's joint count; messages with another count are counted as malformed.
 N_JOINTS: Final = 3
 #: Rows kept per 1 kHz stream (a bit more than 16 s at 1 kHz).
@@ -53,7 +63,7 @@ FE_SOURCE_SEQ: Final = 18
 FE_WIDTH: Final = 19
 
 #: Stream names used in statistics tables.
-STREAMS: Final = ("measured_js", "estimated_cf", "measured_cf", "setpoint_js", "status")
+STREAMS: Final = ("measured_js", "estimated_cf", "true_cf", "setpoint_js", "status")
 
 
 @dataclass(frozen=True)
@@ -90,35 +100,25 @@ class Telemetry:
 
     # -- handlers (Zenoh threads) ------------------------------------------------------
 
-    def on_joint_state(self, payload: bytes) -> None:
-        """Decode and store one JointState."""
+    def on_joint_state(self, msg: JointState, attachment: Attachment) -> None:
+        """Store one JointState of the slave."""
         stats = self.stats["measured_js"]
-        try:
-            msg = JointState.decode(payload)
-        except Exception:
-            stats.record_malformed()
-            return
         if msg.n_joints != N_JOINTS:
             stats.record_malformed()
             return
         arrival = self._clock()
-        stats.record(msg.seq, msg.t_ns, arrival, self._wall_ns())
+        stats.record(attachment, arrival, self._wall_ns())
         self.joint_state.append(msg.t_ns * 1e-9, msg.q_rad + msg.qd_rad_s + msg.effort_nm)
         self._joint_state_arrival = arrival
 
-    def on_estimate(self, payload: bytes) -> None:
-        """Decode and store one ForceEstimate message."""
+    def on_estimate(self, msg: ForceEstimateMessage, attachment: Attachment) -> None:
+        """Store one force estimate (the WrenchStamped and its diagnostics, joined)."""
         stats = self.stats["estimated_cf"]
-        try:
-            msg = ForceEstimateMessage.decode(payload)
-        except Exception:
-            stats.record_malformed()
-            return
         if msg.n_joints != N_JOINTS:
             stats.record_malformed()
             return
         arrival = self._clock()
-        stats.record(msg.seq, msg.t_ns, arrival, self._wall_ns())
+        stats.record(attachment, arrival, self._wall_ns())
         trained = tuple(1.0 if flag else 0.0 for flag in msg.on_trained_ground)
         row = (
             msg.f_n + msg.tau_ext_nm + msg.coverage_weight + msg.tau_motor_filtered_nm
@@ -130,43 +130,30 @@ class Telemetry:
                 self._last_untrained[j] = arrival
         self._estimate_arrival = arrival
 
-    def on_contact(self, payload: bytes) -> None:
-        """Decode and store one ground-truth ContactForce."""
-        stats = self.stats["measured_cf"]
-        try:
-            msg = ContactForce.decode(payload)
-        except Exception:
-            stats.record_malformed()
-            return
-        stats.record(msg.seq, msg.t_ns, self._clock(), self._wall_ns())
+    def on_contact(self, msg: ContactForce, attachment: Attachment) -> None:
+        """Store one true tip force (``true_cf``)."""
+        self.stats["true_cf"].record(attachment, self._clock(), self._wall_ns())
         self.contact.append(msg.t_ns * 1e-9, msg.f_n)
 
-    def on_setpoint(self, payload: bytes) -> None:
-        """Decode and store one master JointSetpoint."""
+    def on_setpoint(self, msg: JointSetpoint, attachment: Attachment) -> None:
+        """Store one setpoint of the master."""
         stats = self.stats["setpoint_js"]
-        try:
-            msg = JointSetpoint.decode(payload)
-        except Exception:
-            stats.record_malformed()
-            return
         if msg.n_joints != N_JOINTS:
             stats.record_malformed()
             return
-        stats.record(msg.seq, msg.t_ns, self._clock(), self._wall_ns())
+        stats.record(attachment, self._clock(), self._wall_ns())
         self.setpoint.append(msg.t_ns * 1e-9, msg.q_rad)
 
-    def on_status(self, payload: bytes) -> None:
-        """Decode and keep the latest Status."""
-        stats = self.stats["status"]
-        try:
-            msg = Status.decode(payload)
-        except Exception:
-            stats.record_malformed()
-            return
+    def on_status(self, msg: Status, attachment: Attachment) -> None:
+        """Keep the latest Status of the slave."""
         arrival = self._clock()
-        stats.record(msg.seq, msg.t_ns, arrival, self._wall_ns())
+        self.stats["status"].record(attachment, arrival, self._wall_ns())
         with self._status_lock:
             self._status = StatusSample(msg.state, msg.reason, arrival)
+
+    def on_malformed(self, stream: str) -> None:
+        """Count one dropped sample of ``stream`` (one of :data:`STREAMS`)."""
+        self.stats[stream].record_malformed()
 
     # -- readers (render thread) -------------------------------------------------------
 
@@ -200,43 +187,54 @@ class Telemetry:
 
 
 class Subscriptions:
-    """The Zenoh subscribers feeding a :class:`Telemetry`; undeclared by :meth:`close`."""
+    """The ROS 2 subscriptions feeding a :class:`Telemetry`; undeclared by :meth:`close`."""
 
-    def __init__(
-        self, session: zenoh.Session, telemetry: Telemetry, device: str, master_device: str
-    ) -> None:
-        """Subscribe to the slave's streams and the master's setpoints."""
-        routes: list[tuple[str, Callable[[bytes], None]]] = [
-            (keys.measured_js(device), telemetry.on_joint_state),
-            (keys.estimated_cf(device), telemetry.on_estimate),
-            (keys.measured_cf(device), telemetry.on_contact),
-            (keys.status(device), telemetry.on_status),
-            (keys.setpoint_js(master_device), telemetry.on_setpoint),
+    def __init__(self, node: Node, telemetry: Telemetry, device: str, master_device: str) -> None:
+        """Subscribe on ``node`` to the slave's streams and the master's setpoints."""
+        routes: list[tuple[str, topics.Topic, str, streams.MessageCallback]] = [
+            ("measured_js", topics.MEASURED_JS, device, telemetry.on_joint_state),
+            ("estimated_cf", topics.ESTIMATED_CF, device, telemetry.on_estimate),
+            ("true_cf", topics.TRUE_CF, device, telemetry.on_contact),
+            ("status", topics.STATUS, device, telemetry.on_status),
+            ("setpoint_js", topics.SETPOINT_JS, master_device, telemetry.on_setpoint),
         ]
-        self.keys = tuple(key for key, _ in routes)
-        self._subscribers: list[Any] = []
+        self._telemetry = telemetry
+        self._by_stream: dict[str, list[Subscription]] = {}
         try:
-            for key, handler in routes:
-                self._subscribers.append(
-                    session.declare_subscriber(key, _payload_callback(handler))
-                )
+            for stream, topic, owner, handler in routes:
+                # Not ``direct``: the decode (rosbags) runs on a Python thread, off Zenoh's.
+                self._by_stream[stream] = streams.subscribe(
+                    node, owner, topic, handler, _malformed_counter(telemetry, stream),
+                    n_joints=N_JOINTS,
+                )  # fmt: skip
         except BaseException:
             self.close()
             raise
+        self.keys = tuple(sub.key for subs in self._by_stream.values() for sub in subs)
+
+    def snapshots(self, window_s: float = 1.0) -> dict[str, StreamSnapshot]:
+        """:meth:`Telemetry.snapshots`, samples without a valid attachment counted as malformed."""
+        snaps = self._telemetry.snapshots(window_s)
+        for stream, subs in self._by_stream.items():
+            dropped = sum(sub.malformed for sub in subs)
+            if dropped:
+                snap = snaps[stream]
+                snaps[stream] = dataclasses.replace(snap, malformed=snap.malformed + dropped)
+        return snaps
 
     def close(self) -> None:
-        """Undeclare every subscriber (idempotent)."""
-        while self._subscribers:
-            sub = self._subscribers.pop()
-            with contextlib.suppress(Exception):  # the session may already be closed
-                sub.undeclare()
+        """Undeclare every subscription (idempotent; the session may already be closed)."""
+        while self._by_stream:
+            _, subs = self._by_stream.popitem()
+            for sub in subs:
+                sub.close()
 
 
-def _payload_callback(handler: Callable[[bytes], None]) -> Callable[[zenoh.Sample], None]:
-    def callback(sample: zenoh.Sample) -> None:
-        handler(sample.payload.to_bytes())
+def _malformed_counter(telemetry: Telemetry, stream: str) -> streams.MalformedCallback:
+    def on_malformed(_topic: str, _error: MessageError) -> None:
+        telemetry.on_malformed(stream)
 
-    return callback
+    return on_malformed
 
 
 __all__ = [
@@ -253,6 +251,7 @@ __all__ = [
     "JS_Q",
     "JS_QD",
     "JS_WIDTH",
+    "NODE_NAME",
     "N_JOINTS",
     "STREAMS",
     "StatusSample",

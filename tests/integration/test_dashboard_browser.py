@@ -1,13 +1,15 @@
 """The dashboard in a real headless Chromium, fed by real Zenoh traffic from this test.
 
 The test process plays the teleop system: it listens on a loopback endpoint (peer mode,
-multicast scouting off), publishes synthetic JointState / ForceEstimateMessage / ContactForce at
-~1 kHz plus setpoints and a status, and answers the service's model / stats / control
-queries. The dashboard runs as ``python -m web`` would (runpy, after setting a parent-death
-signal) in a subprocess connected to that endpoint; playwright drives Debian's Chromium (never
-a downloaded browser). A third Zenoh session counts ``seq`` gaps of the 1 kHz stream while the
-dashboard is open, to show the dashboard does not cost the other subscribers anything; the
-figures go to test-output/dashboard_loss.json.
+multicast scouting off) and, as a ROS 2 node on rmw_zenoh's keys, publishes the slave's
+``measured_js``, ``estimated_cf`` + ``estimate_diagnostics`` and ``true_cf`` at ~1 kHz plus
+the master's ``setpoint_js`` and the slave's ``status`` (rosbags CDR, rmw_zenoh's
+attachment), and answers the service's model / stats / control queries (the project's JSON
+keys). The dashboard runs as ``python -m web`` would (runpy, after setting a parent-death
+signal) in a subprocess connected to that endpoint; playwright drives Debian's Chromium
+(never a downloaded browser). A third Zenoh session counts gaps in the attachment's sequence
+number of the 1 kHz stream while the dashboard is open, to show the dashboard does not cost
+the other subscribers anything; the figures go to test-output/dashboard_loss.json.
 
 Built for a loaded 2-core machine: every wait is event-driven and bounded (the page may trail
 the dashboard by seconds, the estimate may briefly read STALE when a process is starved, so
@@ -34,15 +36,19 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from teleop_helpers import STARTUP_TIMEOUT_S, python_module, stop, tcp_port_open
 
+from teleop_force.ros2 import codec, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher
 from teleop_force.transport.session import free_tcp_port
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "test-output"
 DEVICE, MASTER = "slave", "master"
+NAMES = topics.OMNI_MODEL_JOINT_NAMES
 RATE_HZ = 1000.0
 #: Radius of the trained disc in the (qd2, qd3) plane and qd1 half-range [rad/s].
 TRAINED_RADIUS = 1.0
@@ -54,6 +60,12 @@ MAX_BACKLOG_S = 0.02
 STARTUP_S = 60.0
 WAIT_S = 45.0
 WAIT_MS = int(WAIT_S * 1000)
+
+#: ``teleop-force demo`` flags that make its processes publish the ROS 2 topics the dashboard
+#: reads (drop them once ROS 2 is the processes' only path).
+DEMO_ROS2_FLAGS = ("--ros2",)
+#: The streams of the dashboard's statistics table.
+STREAMS = ("measured_js", "estimated_cf", "true_cf", "setpoint_js", "status")
 
 pytestmark = [pytest.mark.browser, pytest.mark.zenoh]  # skipped without Chromium (conftest)
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (python) not installed")
@@ -146,18 +158,22 @@ class FakeSystem:
         self.t_start = math.nan
         self.requests: list[tuple[str, dict | None]] = []
         self._stop = threading.Event()
-        # The QoS of the real slave, master and service (BLOCK, express, real-time): a
-        # subscriber that falls behind delays the stream instead of losing it. With Zenoh's
-        # default (DROP), the dashboard's link, the busiest, lost samples whenever a CPU-starved
-        # process on a loaded machine left its socket undrained for a moment.
+        # The node's publishers have the QoS of the real slave, master and service (BLOCK,
+        # express, real-time): a subscriber that falls behind delays the stream instead of
+        # losing it. With Zenoh's default (DROP), the dashboard's link, the busiest, lost
+        # samples whenever a CPU-starved process on a loaded machine left its socket undrained.
+        codec.warm_up()
+        self.node = Node(session, "test_fake_system")
         self._pubs = {
-            name: declare_data_publisher(session, key)
-            for name, key in (
-                ("js", keys.measured_js(DEVICE)),
-                ("fe", keys.estimated_cf(DEVICE)),
-                ("cf", keys.measured_cf(DEVICE)),
-                ("st", keys.status(DEVICE)),
-                ("sp", keys.setpoint_js(MASTER)),
+            name: self.node.publisher(topics.topic_name(device, topic), topic.ros_type)
+            for name, device, topic in (
+                ("js", DEVICE, topics.MEASURED_JS),
+                ("fe", DEVICE, topics.ESTIMATED_CF),
+                ("fd", DEVICE, topics.ESTIMATE_DIAGNOSTICS),
+                ("cf", DEVICE, topics.TRUE_CF),
+                ("st", DEVICE, topics.STATUS),
+                ("sp", MASTER, topics.SETPOINT_JS),
+                ("dg", DEVICE, topics.SERVICE_DIAGNOSTICS),
             )
         }
         self.model_path = "/nowhere/initial.json"
@@ -218,10 +234,16 @@ class FakeSystem:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=5)
-        entities: list[Any] = [*self._queryables, self._adapt, *self._pubs.values()]
+        entities: list[Any] = [*self._queryables, self._adapt]
         for entity in entities:
             with contextlib.suppress(Exception):
                 entity.undeclare()
+        with contextlib.suppress(Exception):
+            self.node.close()
+
+    def publish_diagnostics(self, report: m.ServiceDiagnostics) -> None:
+        """Publish one residual-watch report on ``/<device>/service/diagnostics``."""
+        self._pubs["dg"].publish(codec.encode_service_diagnostics(report))
 
     def _run(self) -> None:
         period = 1.0 / RATE_HZ
@@ -266,25 +288,38 @@ class FakeSystem:
         trained = (abs(qd[0]) < TRAINED_QD1, trained_23, trained_23)
         f_est = f_true if phase != "singular" else (math.nan,) * 3
         f_est = tuple(x + 0.05 * math.sin(7 * t + i) for i, x in enumerate(f_est))
-        self._pubs["js"].put(m.JointState(k % 2**32, t_ns, q, qd, tau).encode())
-        self._pubs["fe"].put(
+        # The seq of the project's values is not on the wire: the attachment carries it.
+        sent = self._pubs["js"].publish(
+            codec.encode_joint_state(m.JointState(0, t_ns, q, qd, tau), NAMES)
+        )
+        wrench, diagnostics = codec.encode_estimate(
             m.ForceEstimateMessage(
-                k % 2**32, t_ns, k % 2**32, f_est,
+                0, t_ns, sent.sequence_number, f_est,
                 tuple(x * 0.1 for x in f_true), trained, tuple(1.0 if f else 0.0 for f in trained),
                 tau, tuple(x - 0.004 for x in tau),
-            ).encode()
+            ),
+            NAMES, topics.BASE_FRAME,
         )  # fmt: skip
-        self._pubs["cf"].put(m.ContactForce(k % 2**32, t_ns, f_true).encode())
+        self._pubs["fe"].publish(wrench)
+        self._pubs["fd"].publish(diagnostics)
+        contact = m.ContactForce(0, t_ns, f_true)
+        self._pubs["cf"].publish(codec.encode_contact_force(contact, topics.BASE_FRAME))
         if k % 10 == 0:
             sp = (q[0] + 0.05, q[1] - 0.04, q[2] + 0.03)
-            self._pubs["sp"].put(m.JointSetpoint(k // 10, t_ns, sp).encode())
+            self._pubs["sp"].publish(
+                codec.encode_joint_setpoint(m.JointSetpoint(0, t_ns, sp), NAMES)
+            )
         if k % 100 == 0:
-            self._pubs["st"].put(m.Status(k // 100, t_ns, self.state, self.reason).encode())
+            status = m.Status(0, t_ns, self.state, self.reason)
+            self._pubs["st"].publish(codec.encode_status(status))
         self.published += 1
 
 
 class GapCounter:
-    """A separate subscriber counting seq gaps of the slave's 1 kHz joint states."""
+    """A separate ROS 2 node counting sequence gaps of the slave's 1 kHz joint states.
+
+    Sequence number and source time are the attachment's (latency: one host, one clock).
+    """
 
     def __init__(self, session: zenoh.Session) -> None:
         self.received = 0
@@ -293,16 +328,18 @@ class GapCounter:
         self.latency_ms_max = 0.0
         self._last: int | None = None
         self._lock = threading.Lock()
-        self._sub = session.declare_subscriber(keys.measured_js(DEVICE), self._on)
+        self._node = Node(session, "test_gap_counter")
+        name = topics.topic_name(DEVICE, topics.MEASURED_JS)
+        self._node.subscription(name, topics.MEASURED_JS.ros_type, self._on)
 
-    def _on(self, sample: zenoh.Sample) -> None:
-        _, _, seq, t_ns = m.peek_header(sample.payload.to_bytes())
-        latency_ms = (time.time_ns() - t_ns) / 1e6
+    def _on(self, _payload: bytes, attachment: Attachment) -> None:
+        latency_ms = (time.time_ns() - attachment.source_timestamp_ns) / 1e6
+        seq = attachment.sequence_number
         with self._lock:
             self.latency_ms_sum += latency_ms
             self.latency_ms_max = max(self.latency_ms_max, latency_ms)
             if self._last is not None:
-                self.lost += m.sequence_gap(self._last, seq)
+                self.lost += seq - self._last - 1
             self._last = seq
             self.received += 1
 
@@ -316,7 +353,7 @@ class GapCounter:
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
-            self._sub.undeclare()
+            self._node.close()
 
 
 # --------------------------------------------------------------------------- fixtures
@@ -491,6 +528,69 @@ def wait_banner(page, state: str, headline: str, title: str = "") -> None:
     )
 
 
+STATS_ROWS_JS = """(streams) => { const lines = document.body.innerText.split('\\n');
+    return streams.map(s => lines.find(l => l.startsWith(s + '\\t')) ?? ''); }"""
+#: True once every stream's row shows an age (a message arrived) and the watch reported.
+DEMO_LIVE_JS = f"""(streams) => ({STATS_ROWS_JS})(streams).every(r => {{
+        const c = r.split('\\t'); return c.length >= 6 && c[5] !== 'never'; }})
+    && !document.body.innerText.includes("no report from the service's residual watch yet")"""
+
+
+def test_dashboard_on_the_live_demo(tmp_path, chromium):
+    """The demo's slave, master and service on ROS 2: every stream and the watch arrive, none bad.
+
+    First in the module: the fake system of the tests below is not up yet.
+    """
+    http_port, zenoh_port = free_tcp_port(), free_tcp_port()
+    out_path = tmp_path / "demo.out"
+    with out_path.open("wb") as out:
+        demo = subprocess.Popen(
+            python_module("teleop_force.cli.main", "demo", *DEMO_ROS2_FLAGS, "--port",
+                          str(http_port), "--zenoh-port", str(zenoh_port), "--record-dir",
+                          str(tmp_path), "--duration", "600"),
+            stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )  # fmt: skip
+
+    def demo_tail() -> str:
+        return "\n--- demo output (tail) ---\n" + out_path.read_text(errors="replace")[-3000:]
+
+    try:
+        deadline = time.monotonic() + 3 * STARTUP_TIMEOUT_S
+        while not tcp_port_open(http_port):
+            assert demo.poll() is None, f"the demo exited with {demo.returncode}{demo_tail()}"
+            assert time.monotonic() < deadline, f"no dashboard on the demo{demo_tail()}"
+            time.sleep(0.2)
+        with sync_api.sync_playwright() as pw:
+            browser = pw.chromium.launch(
+                executable_path=chromium.executable_path, args=list(chromium.args),
+                headless=True, timeout=STARTUP_TIMEOUT_S * 1000,
+            )  # fmt: skip
+            try:
+                pg = browser.new_page(viewport={"width": 1500, "height": 1150})
+                pg.goto(f"http://127.0.0.1:{http_port}/", wait_until="domcontentloaded",
+                        timeout=STARTUP_TIMEOUT_S * 1000)  # fmt: skip
+                try:
+                    pg.wait_for_function(
+                        DEMO_LIVE_JS, arg=list(STREAMS), polling=500,
+                        timeout=3 * STARTUP_TIMEOUT_S * 1000,
+                    )  # fmt: skip
+                except sync_api.TimeoutError:
+                    rows = pg.evaluate(STATS_ROWS_JS, list(STREAMS))
+                    raise AssertionError(f"streams missing: {rows}{demo_tail()}") from None
+                rows = pg.evaluate(STATS_ROWS_JS, list(STREAMS))
+                trust = pg.get_attribute("#tf-trust", "data-trust")
+                body = pg.inner_text("body")
+            finally:
+                browser.close()
+    finally:
+        stop(demo, signal.SIGINT, timeout_s=60.0)
+    bad = {row.split("\t")[0]: row.split("\t")[4] for row in rows}
+    assert all(count == "0" for count in bad.values()), (rows, demo_tail())
+    assert trust in ("trusted", "untrusted"), trust  # estimates arrive: not "waiting"
+    assert "synchronised clocks" in body
+
+
 def test_dashboard_renders_updates_and_warns(system, page):
     fake, gaps = system["fake"], system["gaps"]
     t_start = time.perf_counter()
@@ -612,6 +712,7 @@ def test_dashboard_renders_updates_and_warns(system, page):
     received, lost, latency_mean, latency_max = gaps.reset()
     stats_text = page.inner_text("body")
     row = next((line for line in stats_text.splitlines() if line.startswith("measured_js")), "")
+    assert "synchronised clocks" in stats_text  # latency across hosts needs them: said
     cells = row.split("\t")
     dashboard_lost = int(cells[3]) if len(cells) > 4 else -1
     elapsed = time.perf_counter() - t_start
@@ -649,12 +750,12 @@ def test_dashboard_shows_the_residual_watch_and_the_command(system, page):
         finding=m.DiagnosticFinding(2, "tau2", 0.08, 0.012, 1e-12, 66.0, True),
         command=command,
     )  # fmt: skip
-    publisher = system["fake"].session.declare_publisher(keys.service_diagnostics(DEVICE))
+    fake = system["fake"]
     stop = threading.Event()
 
     def publish() -> None:  # every second, as the service does
         while not stop.is_set():
-            publisher.put(report.encode())
+            fake.publish_diagnostics(report)
             stop.wait(1.0)
 
     thread = threading.Thread(target=publish, daemon=True)
@@ -670,4 +771,3 @@ def test_dashboard_shows_the_residual_watch_and_the_command(system, page):
     finally:
         stop.set()
         thread.join(5.0)
-        publisher.undeclare()

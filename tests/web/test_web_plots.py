@@ -1,4 +1,5 @@
 import numpy as np
+from web_ros2 import attachment
 
 from teleop_force.transport import messages as m
 from web.plots import plot_frames, uplot_safe
@@ -23,10 +24,11 @@ def test_plot_frames_bin_every_stream_on_one_axis():
         tel.on_estimate(
             m.ForceEstimateMessage(
                 k, t_ns, k, f, (0.1, 0.2, 0.3), (True,) * 3, (1.0,) * 3, (0.5,) * 3, (0.4,) * 3
-            ).encode()
+            ),
+            attachment(k + 1, t_ns),
         )
         if k >= 1000:
-            tel.on_contact(m.ContactForce(k, t_ns, (0.0, -1.1, 0.0)).encode())
+            tel.on_contact(m.ContactForce(k, t_ns, (0.0, -1.1, 0.0)), attachment(k + 1, t_ns))
     frames = plot_frames(tel, 10.0, 300)
     # Only bins from the first sample on are sent (about 3 s of the 10 s window).
     assert 85 <= frames.x.size <= 92 and frames.x[-1] <= 0 and frames.x[0] >= -3.1
