@@ -61,9 +61,6 @@ STARTUP_S = 60.0
 WAIT_S = 45.0
 WAIT_MS = int(WAIT_S * 1000)
 
-#: ``teleop-force demo`` flags that make its processes publish the ROS 2 topics the dashboard
-#: reads (drop them once ROS 2 is the processes' only path).
-DEMO_ROS2_FLAGS = ("--ros2",)
 #: The streams of the dashboard's statistics table.
 STREAMS = ("measured_js", "estimated_cf", "true_cf", "setpoint_js", "status")
 
@@ -545,7 +542,7 @@ def test_dashboard_on_the_live_demo(tmp_path, chromium):
     out_path = tmp_path / "demo.out"
     with out_path.open("wb") as out:
         demo = subprocess.Popen(
-            python_module("teleop_force.cli.main", "demo", *DEMO_ROS2_FLAGS, "--port",
+            python_module("teleop_force.cli.main", "demo", "--port",
                           str(http_port), "--zenoh-port", str(zenoh_port), "--record-dir",
                           str(tmp_path), "--duration", "600"),
             stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
