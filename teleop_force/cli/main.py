@@ -417,6 +417,7 @@ def _publish(args: argparse.Namespace) -> int:
                 master=reader.metadata.get("master_device") or None,
                 record_path=None if args.record is None else Path(args.record),
                 source="replay",
+                ros2=True,  # a replay publishes ROS 2 messages only
             )
             service = ForceService(session, model, service_config, model_path=model_path).start()
         _log(
@@ -426,7 +427,7 @@ def _publish(args: argparse.Namespace) -> int:
         result = replay_session(session, config, stop)
         payload: dict[str, Any] = result.to_dict()
         if service is not None:
-            expected = result.published.get(f"omni/{device}/measured_js", 0)
+            expected = result.published.get(f"/{device}/measured_js", 0)
             seqs = service.joint_states.seqs
             done, idle_since = -1, time.perf_counter()
             while seqs.received < expected and time.perf_counter() - idle_since < 10.0:
