@@ -1,25 +1,33 @@
-"""Recorded sessions: MCAP files with one channel per Zenoh key, in ROS 2 CDR, read by Foxglove.
+"""Recorded sessions: MCAP files read by Foxglove, rosbag2 and this project.
 
-Layout of a session file:
+A session recorded today is a ROS 2 bag (profile ``ros2``, written by
+:class:`~teleop_force.service.ros2_recorder.Ros2Recorder` with :meth:`SessionWriter.write_ros2`):
+one channel per ROS 2 topic (``/slave/measured_js``), message encoding ``cdr``, the standard
+``ros2msg`` schemas (``sensor_msgs/msg/JointState`` ...), the CDR bytes as received, MCAP
+``sequence`` and ``publish_time`` = rmw_zenoh's attachment sequence number and source time,
+``log_time`` = when the recorder got the message.
 
-- one channel per Zenoh key (``omni/<device>/measured_js`` ...), message encoding ``cdr`` with
-  a ``ros2msg`` schema per message class (``teleop_force/msg/JointState`` ...), the payloads and
-  schemas of :mod:`teleop_force.io.cdr_messages`: Foxglove decodes and plots every field;
-- MCAP ``log_time`` = when the recorder got the message, ``publish_time`` = the message's
-  own source stamp ``t_ns`` (``log_time`` if negative), MCAP ``sequence`` = the message's
-  ``seq``;
-- a metadata record ``teleop_force.session`` with the writer's key/value metadata, plus
-  ``format`` (``teleop-force-session``), ``format_version`` (``2``: CDR; ``1``: JSON) and
-  ``message_encoding``;
-- schemas and channels as top-level records, written when a key is first recorded; each
-  chunk holds the messages of one channel (:mod:`teleop_force.io.cdr_chunks`).
-
-Recordings made before the CDR encoding (format version 1: JSON channels with a
-``jsonschema`` schema per class, ``teleop_force.JointState`` ...) are read the same way, and
-:func:`export_session_json` rewrites any session in that layout (``SessionWriter(...,
+Sessions recorded before ROS 2 stay readable, replayable and writable (format version 2): one
+channel per Zenoh key (``omni/<device>/measured_js`` ...), ``cdr`` with a ``ros2msg`` schema
+per message class (``teleop_force/msg/JointState`` ...), the payloads of
+:mod:`teleop_force.io.cdr_messages`, ``publish_time`` = the message's stamp ``t_ns``
+(``log_time`` if negative), ``sequence`` = its ``seq``; and before the CDR encoding (format
+version 1) JSON channels with a ``jsonschema`` schema per class (``teleop_force.JointState``
+...). :func:`export_session_json` rewrites any session in that layout (``SessionWriter(...,
 message_encoding="json")`` writes it directly).
 
-Writing: :meth:`SessionWriter.write_payloads` records a batch of wire payloads, checked and
+Every session has a metadata record ``teleop_force.session`` with the writer's key/value
+metadata, plus ``format`` (``teleop-force-session``), ``format_version`` and
+``message_encoding``; schemas and channels are top-level records, written when a channel is
+first recorded; each chunk holds the messages of one channel (:mod:`teleop_force.io.cdr_chunks`).
+
+Reading: :class:`SessionReader` names each channel by its :class:`Stream` (device and kind,
+:func:`parse_stream`), so one API serves ``/slave/measured_js`` and ``omni/slave/measured_js``;
+it decodes ROS 2 channels with :mod:`teleop_force.ros2.codec` into the project's messages.
+
+Writing: :meth:`SessionWriter.write_ros2` records one ROS 2 message as received,
+:meth:`SessionWriter.write_ros2_block` a block of same-size ones (numpy rows).
+:meth:`SessionWriter.write_payloads` records a batch of older wire payloads, checked and
 converted to CDR with numpy per key (no Python object per message); a malformed payload (or
 one of another class than its key's first) is rejected and returned, the rest written.
 :meth:`SessionWriter.write` records one message object. :meth:`SessionWriter.copy_from` copies
@@ -31,8 +39,8 @@ the open chunks are closed at least every ``flush_interval_s`` (checked on every
 :meth:`SessionWriter.flush_if_due`), so a recorder killed with SIGKILL leaves a file whose
 complete chunks are all readable: it loses at most the last ``flush_interval_s`` of data.
 The writer keeps one chunk index per chunk in memory until the summary is written at close
-(under 1 kB each: the demo's six keys flushed every 0.4 s by the recorder make 9000 chunks in
-10 minutes, a few MB). :class:`SessionReader` reads such a truncated file (no summary or
+(under 1 kB each: eight channels flushed every 0.5 s make 10 000 chunks in 10 minutes, a
+few MB). :class:`SessionReader` reads such a truncated file (no summary or
 footer) as well as a complete one; :func:`~teleop_force.io.cdr_columns.read_joint_state_arrays`
 reads the joint states of one key as arrays.
 """
@@ -582,7 +590,8 @@ class SessionWriter:
         ones are read, not written. A CDR session whose chunks hold one channel each (what
         this writer writes) is copied chunk by chunk with numpy, each chunk decompressed
         once; any other (JSON channels, chunks mixing channels, messages out of log-time
-        order) message by message. Raise DataError for an unreadable source, a ``keep`` mask
+        order) message by message. A ROS 2 channel is copied as recorded: the bytes, the
+        MCAP sequence and publish time. Raise DataError for an unreadable source, a ``keep`` mask
         of another length than its topic's messages, or a write error.
         """
         source = Path(source)
@@ -988,17 +997,19 @@ def _bounded_put(pending: dict[int, Any], stamp: int, value: Any) -> None:
 
 
 class SessionReader:
-    """Read a session MCAP file, complete or truncated by a crash of its writer.
+    """Read a session MCAP file (ROS 2 or older), complete or truncated by a crash of its writer.
 
     Opening lists the file's records and raises DataError naming the file for anything that
     is not a readable MCAP; a chunk with complete message indexes is not decompressed then
     (its counts come from the indexes, its CRC is checked when it is read), so opening
     costs little more than reading the schemas and indexes. Iterating yields ``(topic, log_time_ns,
     message)`` in log-time order (equal log times: in file order), decompressing one chunk at a
-    time; ``message`` is a :mod:`teleop_force.transport.messages` object for this project's
-    schemas (CDR ``teleop_force/msg/...`` or, in recordings made before the CDR encoding, JSON
-    ``teleop_force....``), the decoded JSON value for other JSON channels, and the raw bytes
-    otherwise. :attr:`topics` maps each key to its schema name.
+    time; ``message`` is a :mod:`teleop_force.transport.messages` object for the ROS 2 types
+    of :mod:`teleop_force.ros2.topics` (:meth:`messages`) and this project's older schemas (CDR
+    ``teleop_force/msg/...`` or JSON ``teleop_force....``), the decoded JSON value for other
+    JSON channels, and the raw bytes otherwise (:meth:`raw_messages`: every message as
+    stored). :attr:`topics` maps each channel to its schema name, :attr:`streams` each stream
+    to its channel.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
