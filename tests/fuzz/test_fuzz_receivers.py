@@ -1,8 +1,9 @@
 """Fuzzed payloads over real Zenoh: the service and the slave count and drop them, and go on.
 
-The service (recording, so every recorded key is decoded too) runs on a loopback session; the
-test publishes mutated messages of every type on its keys from a second session, predicts
-which ones are malformed, and checks the service's counters and its recording against that.
+The service (recording every ROS 2 sample of the domain) runs on a loopback session; the test
+publishes mutated messages of every type on its joint-state key, and fuzzed samples with and
+without valid attachments on rmw_zenoh keys, from a second session, predicts which ones are
+malformed, and checks the service's counters and its recording against that.
 ``TELEOP_FUZZ_EXAMPLES=N`` sets the number of payloads per key (default 400).
 """
 
@@ -23,6 +24,9 @@ from teleop_force.errors import MessageError
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import SessionReader
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import graph
+from teleop_force.ros2 import topics as ros_topics
+from teleop_force.ros2.attachment import Attachment
 from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -44,25 +48,6 @@ def own_joint_state_is_valid(payload: bytes) -> bool:
     return js.n_joints == 3 and bool(np.all(values <= MAX_ABS_JOINT_VALUE))
 
 
-def recorded_outcomes(payloads: list[bytes]) -> tuple[int, int]:
-    """(written, malformed) for one recorded key: the first good message fixes its type."""
-    kind = None
-    written = malformed = 0
-    for payload in payloads:
-        try:
-            message = m.decode(payload)
-        except MessageError:
-            malformed += 1
-            continue
-        if kind is None:
-            kind = type(message)
-        if type(message) is not kind:
-            malformed += 1
-        else:
-            written += 1
-    return written, malformed
-
-
 def wait_until(predicate, timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while not predicate():
@@ -70,18 +55,54 @@ def wait_until(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.02)
 
 
+def _ros2_samples(n: int, gid: bytes) -> dict[str, list[tuple[bytes, bytes | None]]]:
+    """Fuzzed (payload, attachment) samples on rmw_zenoh keys of the domain, and a non-topic key."""
+    domain = graph.domain_id_from_env()
+    rng = np.random.default_rng(7)
+    keys_ = [
+        ros_topics.data_key("fuzz_slave", ros_topics.TRUE_CF, domain),
+        ros_topics.data_key("fuzz_master", ros_topics.SETPOINT_JS, domain),
+        ros_topics.data_key("fuzz_slave", ros_topics.STATUS, domain),
+        f"{domain}/not_a_topic_key",
+    ]
+    out: dict[str, list[tuple[bytes, bytes | None]]] = {}
+    for i, key in enumerate(keys_):
+        payloads = fuzzed_payloads(n, seed=10 + i)
+        rows: list[tuple[bytes, bytes | None]] = []
+        for k, payload in enumerate(payloads):
+            choice = k % 5
+            if choice == 0:
+                attachment = None
+            elif choice == 1:
+                attachment = rng.bytes(int(rng.integers(0, 40)))
+            else:
+                attachment = Attachment(k + 1, time.time_ns(), gid).encode()
+            rows.append((payload, attachment))
+        out[key] = rows
+    return out
+
+
+def _recorded(key: str, attachment: bytes | None) -> bool:
+    """Whether the recorder writes a sample: a topic key and a valid attachment."""
+    try:
+        graph.parse_topic_key(key)
+        if attachment is None:
+            return False
+        Attachment.decode(attachment)
+    except MessageError:
+        return False
+    return True
+
+
 @pytest.mark.zenoh
 def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pair):
     own = keys.measured_js(DEVICE)
-    others = [
-        keys.setpoint_js("fuzz-master"),
-        keys.measured_cf(DEVICE),
-        keys.status(DEVICE),
-        keys.measured_js("fuzz-other"),
-    ]
-    payloads = {key: fuzzed_payloads(N_PAYLOADS, seed=i) for i, key in enumerate([own, *others])}
-    expected_valid = sum(map(own_joint_state_is_valid, payloads[own]))
-    expected_recorded = {key: recorded_outcomes(payloads[key]) for key in others}
+    payloads = fuzzed_payloads(N_PAYLOADS, seed=0)
+    expected_valid = sum(map(own_joint_state_is_valid, payloads))
+    samples = _ros2_samples(N_PAYLOADS, b"\x07" * 16)
+    expected_recorded = {
+        key: sum(_recorded(key, a) for _, a in rows) for key, rows in samples.items()
+    }
     folder = Path(tempfile.mkdtemp(prefix="fuzz-service-"))
     record = folder / "fuzz.mcap"
     service_session, session = zenoh_pair.listener, zenoh_pair.connector
@@ -89,19 +110,22 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pai
     service = ForceService(
         service_session, model, ServiceConfig(device=DEVICE, record_path=record)
     ).start()
-    publishers = {key: declare_data_publisher(session, key) for key in payloads}
+    publisher = declare_data_publisher(session, own)
+    ros_publishers = {key: declare_data_publisher(session, key) for key in samples}
     got: list[m.ForceEstimateMessage] = []
     sub = session.declare_subscriber(
         keys.estimated_cf(DEVICE),
         lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
     )
     try:
-        for pub in publishers.values():
+        for pub in (publisher, *ros_publishers.values()):
             wait_until(lambda p=pub: p.matching_status.matching, 20.0, "the service to subscribe")
         time.sleep(0.2)
         for k in range(N_PAYLOADS):
-            for key, pub in publishers.items():
-                pub.put(payloads[key][k])
+            publisher.put(payloads[k])
+            for key, pub in ros_publishers.items():
+                payload, attachment = samples[key][k]
+                pub.put(payload, attachment=attachment)
 
         def stats():
             return query_json(session, keys.service_stats(DEVICE), 5.0)
@@ -109,7 +133,9 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pai
         def settled():
             st_ = stats()
             own_seen = st_["joint_states"]["received"] + st_["malformed"]["by_key"].get(own, 0)
-            return own_seen == N_PAYLOADS and st_["recording"]["backlog"] == 0
+            return (
+                own_seen == N_PAYLOADS and st_["recording"]["received"] == len(samples) * N_PAYLOADS
+            )
 
         wait_until(settled, 60.0, "the service to process every payload")
         time.sleep(0.3)
@@ -120,11 +146,11 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pai
             q = (0.1, 0.8 + 1e-3 * k, 0.3)
             good = m.JointState(k, 1_800_000_000_000_000_000 + k * 1_000_000, q, (0.0,) * 3,
                                 (0.0, 0.1, 0.05))  # fmt: skip
-            publishers[own].put(good.encode())
+            publisher.put(good.encode())
         wait_until(lambda: len(got) >= n_before + 200, 30.0, "estimates after the fuzzing")
     finally:
         sub.undeclare()
-        for pub in publishers.values():
+        for pub in (publisher, *ros_publishers.values()):
             pub.undeclare()
         service.close()
     malformed = after_fuzz["malformed"]["by_key"]
@@ -132,16 +158,19 @@ def test_service_counts_and_drops_fuzzed_payloads_and_keeps_estimating(zenoh_pai
     assert after_fuzz["joint_states"]["received"] == expected_valid
     js, est = after_fuzz["joint_states"], after_fuzz["estimates"]
     assert est["published"] + est["errors"] + js["duplicates"] == js["received"]
-    for key, (_written, bad) in expected_recorded.items():
-        assert malformed.get(key, 0) == bad, key
+    for key, written in expected_recorded.items():
+        assert malformed.get(key, 0) == N_PAYLOADS - written, key
     counts = SessionReader(record).message_counts
-    for key, (written, _bad) in expected_recorded.items():
-        assert counts.get(key, 0) == written, key
-    assert counts[own] == expected_valid + 200
-    count("service: fuzzed payloads over Zenoh", "malformed, counted", sum(
-        b for _, b in expected_recorded.values()) + N_PAYLOADS - expected_valid)  # fmt: skip
-    count("service: fuzzed payloads over Zenoh", "valid", sum(
-        w for w, _ in expected_recorded.values()) + expected_valid)  # fmt: skip
+    for key, written in expected_recorded.items():
+        if written and key.split("/")[1] != "not_a_topic_key":
+            topic, _ = graph.parse_topic_key(key)
+            assert counts[topic] == written, key  # the bytes as received, whatever they are
+    assert sum(counts.values()) == sum(expected_recorded.values())
+    refused = sum(N_PAYLOADS - w for w in expected_recorded.values())
+    count("service: fuzzed payloads over Zenoh", "malformed, counted",
+          refused + N_PAYLOADS - expected_valid)  # fmt: skip
+    count("service: fuzzed payloads over Zenoh", "valid",
+          sum(expected_recorded.values()) + expected_valid)  # fmt: skip
 
 
 class FakeSample:
