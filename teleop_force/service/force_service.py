@@ -688,9 +688,15 @@ class ForceService:
         path = self.allowed_records.new_recording(path_text)
         create_exclusively(path)
         try:
-            recorder = Ros2Recorder(self.session, self._open_writer(path), self._count_malformed)
+            writer = self._open_writer(path)
+        except TeleopForceError:
+            _remove_quietly(path)
+            raise
+        recorder = Ros2Recorder(self.session, writer, self._count_malformed)
+        try:
             recorder.start()
         except TeleopForceError:
+            recorder.close()
             _remove_quietly(path)
             raise
         with self._lock:

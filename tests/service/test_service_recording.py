@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
 
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import SessionReader
@@ -105,6 +106,13 @@ def test_the_service_records_the_ros2_messages_and_its_own_estimates(
     assert [e.f_n for e in estimates] == [codec.decode_wrench(p).force_n for p, _ in heard]
     states = [js for _, _, js in reader.messages([f"/{DEVICE}/measured_js"])]
     assert [js.seq for js in states] == [a.sequence_number for a in client.sent]
+    with AnyReader([record]) as bag:  # rosbags decodes the project's types from the schemas
+        (connection,) = [c for c in bag.connections if c.topic.endswith("estimate_diagnostics")]
+        assert connection.msgtype == interfaces.ESTIMATE_DIAGNOSTICS
+        reports = [bag.deserialize(raw, connection.msgtype)
+                   for _, _, raw in bag.messages([connection])]  # fmt: skip
+    assert [int(r.source_sequence) for r in reports] == [e.source_seq for e in estimates]
+    assert [list(r.external_torque_nm) for r in reports] == [list(e.tau_ext_nm) for e in estimates]
 
 
 def test_a_recording_starts_and_stops_on_request(
