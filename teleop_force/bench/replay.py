@@ -45,16 +45,15 @@ def _handled(service: ForceService) -> int:
 
 def replay_job(session_path: Path, model_path: Path) -> dict[str, Any]:
     """Replay one session through an in-process service; return the figures."""
-    from teleop_force.io.mcap_session import SessionReader
+    from teleop_force.io.mcap_session import MEASURED_JS, SessionReader
     from teleop_force.io.replay import ReplayConfig, primary_device, replay_session
     from teleop_force.process.lifetime import StopSignal
     from teleop_force.service.force_service import ForceService, ServiceConfig, load_model
-    from teleop_force.transport import keys
     from teleop_force.transport.session import ZenohOptions, open_session
 
     reader = SessionReader(session_path)
     device = primary_device(reader)
-    expected = reader.message_counts.get(keys.measured_js(device), 0)
+    expected = reader.stream_count(device, MEASURED_JS)
     model, _ = load_model(model_path)
     session = open_session(ZenohOptions(mode="peer", multicast_scouting=False))
     rss_before = resident_memory_mb() or 0.0

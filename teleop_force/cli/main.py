@@ -424,7 +424,7 @@ def _publish(args: argparse.Namespace) -> int:
         result = replay_session(session, config, stop)
         payload: dict[str, Any] = result.to_dict()
         if service is not None:
-            expected = result.published.get(f"omni/{device}/measured_js", 0)
+            expected = result.published.get(f"/{device}/measured_js", 0)
             seqs = service.joint_states.seqs
             done, idle_since = -1, time.perf_counter()
             while seqs.received < expected and time.perf_counter() - idle_since < 10.0:

@@ -8,6 +8,11 @@ the topic's chunks are decompressed, and a decompressed chunk of joint states is
 ``(count, record size)`` array whose columns are the fields. Anything else (recordings with JSON
 channels made before the CDR encoding, chunks mixing channels, the last chunk of a crashed
 recording whose message index was not written) is read record by record: correct, slower.
+
+A ROS 2 session's ``sensor_msgs/msg/JointState`` channel (``/slave/measured_js``) is read the
+same way: a chunk of same-size payloads is split with :mod:`teleop_force.io.ros2_columns`
+(``seq`` is the MCAP sequence, rmw_zenoh's attachment sequence number; ``t_ns`` the header
+stamp), any other with :mod:`teleop_force.ros2.codec`.
 """
 
 from __future__ import annotations
@@ -30,12 +35,15 @@ from mcap.records import Channel, Schema
 from teleop_force.errors import DataError, MessageError
 from teleop_force.io import cdr_chunks as mc
 from teleop_force.io import cdr_messages as cdr
+from teleop_force.io import ros2_columns
 from teleop_force.transport import messages as m
 
 #: Value of a session's ``format`` metadata key (in the ``teleop_force.session`` record).
 _METADATA_NAME: Final = "teleop_force.session"
 _FORMAT_NAME: Final = "teleop-force-session"
 _CDR_SCHEMA: Final = cdr.CDR_SCHEMAS[m.JointState].name
+_ROS2_SCHEMA: Final = "sensor_msgs/msg/JointState"
+_ROS2_WRENCH: Final = "geometry_msgs/msg/WrenchStamped"
 
 
 @dataclass(frozen=True)
@@ -102,6 +110,7 @@ class _Block:
 
     order: int
     records: np.ndarray  # (K, record size) uint8
+    ros2: bool  # sensor_msgs/msg/JointState (else the project's teleop_force/msg/JointState)
 
 
 class _TopicReader:
@@ -117,6 +126,7 @@ class _TopicReader:
         if found != _FORMAT_NAME:
             raise DataError(f"not a teleop-force session (format {found!r})", path=path)
         self.wanted: set[int] = set()
+        self.ros2_ids: set[int] = set()  # the wanted channels of sensor_msgs/msg/JointState
         self.pieces: list[_Piece | _Block] = []
         for channel in list(self.scan.channels.values()):
             self._consider(channel)
@@ -130,10 +140,10 @@ class _TopicReader:
             return
         schema = self.scan.schemas.get(channel.schema_id)
         name = "" if schema is None else schema.name
-        if (channel.message_encoding, name) not in (
-            (cdr.MESSAGE_ENCODING, _CDR_SCHEMA),
-            ("json", m.JointState.SCHEMA_NAME),
-        ):
+        pair = (channel.message_encoding, name)
+        if pair == (cdr.MESSAGE_ENCODING, _ROS2_SCHEMA):
+            self.ros2_ids.add(channel.id)
+        elif pair not in ((cdr.MESSAGE_ENCODING, _CDR_SCHEMA), ("json", m.JointState.SCHEMA_NAME)):
             raise self._error(f"{self.topic} does not hold JointState messages")
         self.wanted.add(channel.id)
 
@@ -210,18 +220,57 @@ class _TopicReader:
             return False
         if self.scan.channels[channel_id].message_encoding != cdr.MESSAGE_ENCODING:
             return False
-        self.pieces.append(_Block(order, block))
+        self.pieces.append(_Block(order, block, channel_id in self.ros2_ids))
         return True
 
-    def _columns(self, order: int, records: np.ndarray) -> _Piece:
+    def _columns(self, order: int, records: np.ndarray, ros2: bool) -> _Piece:
         """Split same-size JointState CDR records in columns (checking them)."""
         records = np.ascontiguousarray(records)
         log_time_ns = np.ascontiguousarray(records[:, 15:23]).view("<i8").reshape(-1)
+        if ros2:
+            return self._ros2_columns(order, records, log_time_ns)
         try:
             seq, t_ns, q, qd, effort = cdr.joint_state_columns(records, mc.MESSAGE_HEAD.size)
         except MessageError as exc:
             raise self._error(f"bad JointState: {exc}") from None
         return _Piece(order, log_time_ns, seq, t_ns, q, qd, effort)
+
+    def _ros2_columns(self, order: int, records: np.ndarray, log_time_ns: np.ndarray) -> _Piece:
+        """Split same-size sensor_msgs/msg/JointState records; seq is the MCAP sequence."""
+        seq = np.ascontiguousarray(records[:, 11:15]).view("<u4").reshape(-1)
+        try:
+            columns = ros2_columns.joint_state_columns(records[:, mc.MESSAGE_HEAD.size :])
+        except ros2_columns.LayoutMismatch:  # several layouts: one by one
+            return self._ros2_one_by_one(order, records)
+        except MessageError as exc:
+            raise self._error(f"bad JointState: {exc}") from None
+        values = (columns.position, columns.velocity, columns.effort)
+        if columns.position.shape[1] == 0:
+            raise self._error("bad JointState: no joints")
+        for array in values:
+            finite = np.isfinite(array).all(axis=1)
+            if not finite.all():
+                row = int(np.argmin(finite))
+                raise self._error(f"bad JointState at log time {log_time_ns[row]} ns: non-finite")
+        return _Piece(order, log_time_ns, seq, columns.t_ns, *values)
+
+    def _ros2_one_by_one(self, order: int, records: np.ndarray) -> _Piece:
+        """Decode same-size records of differing layouts with the codec (one joint count)."""
+        width = records.shape[1]
+        raw = records.tobytes()
+        found = [(k * width + mc.RECORD_HEAD.size, width - mc.RECORD_HEAD.size)
+                 for k in range(records.shape[0])]  # fmt: skip
+        before = len(self.pieces)
+        self._add_records(order, raw, found)
+        pieces = [p for p in self.pieces[before:] if isinstance(p, _Piece)]
+        del self.pieces[before:]
+        if len(pieces) != 1:
+            first, second = pieces[0], pieces[1]
+            raise self._error(
+                f"joint count changes from {first.q_rad.shape[1]} to {second.q_rad.shape[1]} "
+                f"at seq {second.seq[0]}"
+            )
+        return pieces[0]
 
     def _merged_pieces(self) -> list[_Piece]:
         """Return the pieces in file order, consecutive blocks of one record size as one."""
@@ -233,12 +282,15 @@ class _TopicReader:
                 records = run[0].records
                 if len(run) > 1:
                     records = np.concatenate([block.records for block in run])
-                merged.append(self._columns(run[0].order, records))
+                merged.append(self._columns(run[0].order, records, run[0].ros2))
                 run.clear()
 
         for item in sorted(self.pieces, key=lambda p: p.order):  # stable: record order kept
             if isinstance(item, _Block):
-                if run and run[0].records.shape[1] != item.records.shape[1]:
+                if run and (run[0].records.shape[1], run[0].ros2) != (
+                    item.records.shape[1],
+                    item.ros2,
+                ):
                     split_run()
                 run.append(item)
             else:
@@ -251,11 +303,15 @@ class _TopicReader:
         """Decode messages one by one (JSON channels, mixed chunks)."""
         rows = []
         for body, length in found:
-            channel_id, _, log_time_ns, _ = mc.MESSAGE_FIELDS.unpack_from(buffer, body)
+            channel_id, sequence, log_time_ns, _ = mc.MESSAGE_FIELDS.unpack_from(buffer, body)
             payload = buffer[body + mc.MESSAGE_FIELDS.size : body + length]
             channel = self.scan.channels[channel_id]
             try:
-                if channel.message_encoding == cdr.MESSAGE_ENCODING:
+                if channel_id in self.ros2_ids:
+                    from teleop_force.ros2 import codec  # rosbags: for ROS 2 sessions only
+
+                    js: m.Message = codec.decode_joint_state(bytes(payload), sequence)[0]
+                elif channel.message_encoding == cdr.MESSAGE_ENCODING:
                     js = cdr.decode_cdr(m.JointState, payload)
                 else:
                     js = m.JointState.from_json_dict(json.loads(payload))
@@ -316,7 +372,7 @@ class _TopicReader:
 
 
 def read_joint_state_arrays(path: str | os.PathLike[str], topic: str) -> JointStateArrays:
-    """Read the JointState messages of ``topic`` (a Zenoh key) from a session, as arrays.
+    """Read the JointState messages of channel ``topic`` from a session, as arrays.
 
     Same messages, order and checks as :class:`~teleop_force.io.mcap_session.SessionReader`
     (also on a file truncated by a crash); raise DataError naming the file if it is not a
@@ -327,4 +383,76 @@ def read_joint_state_arrays(path: str | os.PathLike[str], topic: str) -> JointSt
         return _TopicReader(data, path, topic).read()
 
 
-__all__ = ("JointStateArrays", "read_joint_state_arrays")
+@dataclass(frozen=True)
+class WrenchArrays:
+    """The WrenchStamped messages of one ROS 2 channel: stamps [ns] and ``(N, 3)`` forces [N]."""
+
+    log_time_ns: np.ndarray
+    t_ns: np.ndarray
+    force_n: np.ndarray
+
+
+def read_wrench_arrays(path: str | os.PathLike[str], topic: str) -> WrenchArrays | None:
+    """Read a ROS 2 ``geometry_msgs/msg/WrenchStamped`` channel as arrays, in log-time order.
+
+    Only for what :class:`~teleop_force.io.cdr_chunks.ChunkedMcapWriter` writes (each chunk one
+    channel, with its message index; one layout per chunk, finite forces): ``None`` otherwise
+    (a crashed recording's last chunk, other writers), and the caller reads the messages one
+    by one, with their checks. Raise DataError for a file that is not a readable session.
+    """
+    path = Path(path)
+    with mc.mapped_file(path) as data:
+        scan = mc.scan_mcap(data, path)
+        ids = set()
+        for channel in scan.channels.values():
+            schema = scan.schemas.get(channel.schema_id)
+            if channel.topic == topic:
+                if schema is None or schema.name != _ROS2_WRENCH:
+                    return None
+                ids.add(channel.id)
+        if len(ids) != 1 or any(
+            mc.MESSAGE_FIELDS.unpack_from(data, body)[0] in ids for _, body, _ in scan.loose
+        ):
+            return None
+        (channel_id,) = ids
+        decompressor = zstandard.ZstdDecompressor()
+        logs, stamps, forces = [], [], []
+        for ref in scan.chunks:
+            in_chunk = set(ref.index)
+            if not (ref.index_complete and in_chunk and in_chunk <= set(scan.channels)):
+                return None
+            if channel_id not in in_chunk:
+                continue
+            if len(in_chunk) > 1:
+                return None
+            try:
+                entries = mc.index_entries(data, *ref.index[channel_id])
+                records = mc.chunk_records(data, ref, path, decompressor)
+                located = mc.channel_records(records, channel_id, entries)
+            except (ValueError, struct.error):
+                return None  # read one by one: the reader names the problem
+            sizes = located.payload_size
+            if sizes.size == 0:
+                continue
+            if int(sizes.min()) != int(sizes.max()):
+                return None
+            raw = np.frombuffer(records, dtype=np.uint8)
+            block = raw[located.payload_offset[:, None] + np.arange(int(sizes[0]))]
+            try:
+                columns = ros2_columns.wrench_columns(block)
+            except ros2_columns.LayoutMismatch:
+                return None
+            logs.append(located.log_time_ns)
+            stamps.append(columns.t_ns)
+            forces.append(columns.force)
+    if not logs:
+        return WrenchArrays(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+    log_time_ns = np.concatenate(logs)
+    force = np.concatenate(forces)
+    if not np.isfinite(force).all():
+        return None
+    order = np.argsort(log_time_ns, kind="stable")
+    return WrenchArrays(log_time_ns[order], np.concatenate(stamps)[order], force[order])
+
+
+__all__ = ("JointStateArrays", "WrenchArrays", "read_joint_state_arrays", "read_wrench_arrays")

@@ -1,25 +1,33 @@
-"""Recorded sessions: MCAP files with one channel per Zenoh key, in ROS 2 CDR, read by Foxglove.
+"""Recorded sessions: MCAP files read by Foxglove, rosbag2 and this project.
 
-Layout of a session file:
+A session recorded today is a ROS 2 bag (profile ``ros2``, written by
+:class:`~teleop_force.service.ros2_recorder.Ros2Recorder` with :meth:`SessionWriter.write_ros2`):
+one channel per ROS 2 topic (``/slave/measured_js``), message encoding ``cdr``, the standard
+``ros2msg`` schemas (``sensor_msgs/msg/JointState`` ...), the CDR bytes as received, MCAP
+``sequence`` and ``publish_time`` = rmw_zenoh's attachment sequence number and source time,
+``log_time`` = when the recorder got the message.
 
-- one channel per Zenoh key (``omni/<device>/measured_js`` ...), message encoding ``cdr`` with
-  a ``ros2msg`` schema per message class (``teleop_force/msg/JointState`` ...), the payloads and
-  schemas of :mod:`teleop_force.io.cdr_messages`: Foxglove decodes and plots every field;
-- MCAP ``log_time`` = when the recorder got the message, ``publish_time`` = the message's
-  own source stamp ``t_ns`` (``log_time`` if negative), MCAP ``sequence`` = the message's
-  ``seq``;
-- a metadata record ``teleop_force.session`` with the writer's key/value metadata, plus
-  ``format`` (``teleop-force-session``), ``format_version`` (``2``: CDR; ``1``: JSON) and
-  ``message_encoding``;
-- schemas and channels as top-level records, written when a key is first recorded; each
-  chunk holds the messages of one channel (:mod:`teleop_force.io.cdr_chunks`).
-
-Recordings made before the CDR encoding (format version 1: JSON channels with a
-``jsonschema`` schema per class, ``teleop_force.JointState`` ...) are read the same way, and
-:func:`export_session_json` rewrites any session in that layout (``SessionWriter(...,
+Sessions recorded before ROS 2 stay readable, replayable and writable (format version 2): one
+channel per Zenoh key (``omni/<device>/measured_js`` ...), ``cdr`` with a ``ros2msg`` schema
+per message class (``teleop_force/msg/JointState`` ...), the payloads of
+:mod:`teleop_force.io.cdr_messages`, ``publish_time`` = the message's stamp ``t_ns``
+(``log_time`` if negative), ``sequence`` = its ``seq``; and before the CDR encoding (format
+version 1) JSON channels with a ``jsonschema`` schema per class (``teleop_force.JointState``
+...). :func:`export_session_json` rewrites any session in that layout (``SessionWriter(...,
 message_encoding="json")`` writes it directly).
 
-Writing: :meth:`SessionWriter.write_payloads` records a batch of wire payloads, checked and
+Every session has a metadata record ``teleop_force.session`` with the writer's key/value
+metadata, plus ``format`` (``teleop-force-session``), ``format_version`` and
+``message_encoding``; schemas and channels are top-level records, written when a channel is
+first recorded; each chunk holds the messages of one channel (:mod:`teleop_force.io.cdr_chunks`).
+
+Reading: :class:`SessionReader` names each channel by its :class:`Stream` (device and kind,
+:func:`parse_stream`), so one API serves ``/slave/measured_js`` and ``omni/slave/measured_js``;
+it decodes ROS 2 channels with :mod:`teleop_force.ros2.codec` into the project's messages.
+
+Writing: :meth:`SessionWriter.write_ros2` records one ROS 2 message as received,
+:meth:`SessionWriter.write_ros2_block` a block of same-size ones (numpy rows).
+:meth:`SessionWriter.write_payloads` records a batch of older wire payloads, checked and
 converted to CDR with numpy per key (no Python object per message); a malformed payload (or
 one of another class than its key's first) is rejected and returned, the rest written.
 :meth:`SessionWriter.write` records one message object. :meth:`SessionWriter.copy_from` copies
@@ -31,8 +39,8 @@ the open chunks are closed at least every ``flush_interval_s`` (checked on every
 :meth:`SessionWriter.flush_if_due`), so a recorder killed with SIGKILL leaves a file whose
 complete chunks are all readable: it loses at most the last ``flush_interval_s`` of data.
 The writer keeps one chunk index per chunk in memory until the summary is written at close
-(under 1 kB each: the demo's six keys flushed every 0.4 s by the recorder make 9000 chunks in
-10 minutes, a few MB). :class:`SessionReader` reads such a truncated file (no summary or
+(under 1 kB each: eight channels flushed every 0.5 s make 10 000 chunks in 10 minutes, a
+few MB). :class:`SessionReader` reads such a truncated file (no summary or
 footer) as well as a complete one; :func:`~teleop_force.io.cdr_columns.read_joint_state_arrays`
 reads the joint states of one key as arrays.
 """
@@ -71,8 +79,9 @@ from teleop_force.errors import (
 from teleop_force.io import cdr_chunks as mc
 from teleop_force.io import cdr_messages as cdr
 from teleop_force.io.cdr_chunks import COMPRESSIONS, ChunkedMcapWriter, DirectFile
-from teleop_force.io.cdr_columns import read_joint_state_arrays
+from teleop_force.io.cdr_columns import read_joint_state_arrays, read_wrench_arrays
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.ros2 import interfaces
 from teleop_force.transport import keys
 from teleop_force.transport import messages as msg
 
@@ -90,6 +99,74 @@ DEFAULT_FLUSH_INTERVAL_S: Final = 0.5
 _MAX_RECORD_BYTES: Final = 1 << 30  # larger than any record this project writes: corrupt
 _MAX_LOG_TIME_NS: Final = 2**63  # log times are int64 nanoseconds since the epoch
 _MESSAGE_CLASSES: Final = tuple(msg.MESSAGE_CLASSES.values())
+
+#: Stream kinds, named as the ROS 2 topics name them (:mod:`teleop_force.ros2.topics`).
+MEASURED_JS: Final = "measured_js"
+SETPOINT_JS: Final = "setpoint_js"
+TRUE_CF: Final = "true_cf"
+ESTIMATED_CF: Final = "estimated_cf"
+ESTIMATE_DIAGNOSTICS: Final = "estimate_diagnostics"
+STATUS: Final = "status"
+SERVICE_DIAGNOSTICS: Final = "service/diagnostics"
+STREAM_KINDS: Final = (
+    MEASURED_JS, SETPOINT_JS, TRUE_CF, ESTIMATED_CF, ESTIMATE_DIAGNOSTICS, STATUS,
+    SERVICE_DIAGNOSTICS,
+)  # fmt: skip
+#: The kind of each channel of a session recorded before ROS 2 (``omni/<device>/<kind>``).
+_OLD_KINDS: Final = {
+    keys.MEASURED_JS: MEASURED_JS, keys.SETPOINT_JS: SETPOINT_JS, keys.MEASURED_CF: TRUE_CF,
+    keys.ESTIMATED_CF: ESTIMATED_CF, keys.STATUS: STATUS,
+    keys.SERVICE_DIAGNOSTICS: SERVICE_DIAGNOSTICS,
+}  # fmt: skip
+#: The ROS 2 types a session's ROS channels are decoded from (``ros2msg`` schemas).
+ROS2_TYPES: Final = interfaces.PUBLISHED_TYPES
+#: Estimate halves waiting for their other half, per device, at most.
+_MAX_PENDING_HALVES: Final = 1024
+
+
+@dataclass(frozen=True, order=True)
+class Stream:
+    """One recorded stream: a device and a kind of :data:`STREAM_KINDS`.
+
+    A session recorded from ROS 2 names its channels by topic (``/slave/measured_js``), one
+    recorded before by Zenoh key (``omni/slave/measured_js``; its ``measured_cf`` is the
+    ``true_cf`` stream): :func:`parse_stream` maps either to the same stream.
+    """
+
+    device: str
+    kind: str
+
+    def ros2_topic(self) -> str:
+        """Return the ROS 2 topic name ``/<device>/<kind>``."""
+        return f"/{self.device}/{self.kind}"
+
+
+def parse_stream(topic: str) -> Stream | None:
+    """Return the stream a channel carries (``/<device>/<kind>`` or ``omni/<device>/<kind>``)."""
+    if topic.startswith("/"):
+        device, _, kind = topic[1:].partition("/")
+        if device and kind in STREAM_KINDS and "/" not in device:
+            return Stream(device, kind)
+        return None
+    try:
+        parsed = keys.parse(topic)
+    except TeleopForceError:
+        return None
+    old = _OLD_KINDS.get(parsed.kind)
+    return None if old is None else Stream(parsed.device, old)
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """A recorded message as stored: channel, schema name, MCAP times and sequence, bytes."""
+
+    topic: str
+    schema_name: str
+    message_encoding: str
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    data: bytes
 
 
 # --------------------------------------------------------------------------- writing
@@ -242,6 +319,39 @@ class SessionWriter:
             with self._io_errors():
                 self._mcap.add_message(
                     channel_id, sequence & 0xFFFF_FFFF, log_time_ns, publish_ns, bytes(payload)
+                )
+                self._flush_locked(due_only=True)
+
+    def write_ros2_block(
+        self,
+        topic: str,
+        ros_type: str,
+        payloads: np.ndarray,
+        sequence: np.ndarray,
+        publish_time_ns: np.ndarray,
+        log_time_ns: np.ndarray,
+    ) -> None:
+        """Record ``(K, size)`` uint8 rows of same-size ROS 2 payloads, as :meth:`write_ros2`.
+
+        One entry per row in ``sequence`` (modulo 2**32), ``publish_time_ns`` and
+        ``log_time_ns`` (in [0, 2**63)); rows keep their order.
+        """
+        rows = payloads.shape[0]
+        logs = np.asarray(log_time_ns, dtype=np.int64)
+        publish = np.asarray(publish_time_ns, dtype=np.int64)
+        if payloads.ndim != 2 or payloads.dtype != np.uint8 or logs.shape != (rows,):
+            raise DataError("payload rows and log times do not match", path=self.path)
+        if publish.shape != (rows,) or np.shape(sequence) != (rows,):
+            raise DataError("payload rows and sequence / publish times differ", path=self.path)
+        if rows and int(logs.min()) < 0:
+            raise DataError("log times must be >= 0", path=self.path)
+        seq = (np.asarray(sequence, dtype=np.int64) & 0xFFFF_FFFF).astype(np.uint32)
+        with self._lock:
+            self._check_open()
+            channel_id = self._ros2_channel(topic, ros_type)
+            with self._io_errors():
+                self._mcap.add_messages(
+                    channel_id, payloads, seq, logs, np.where(publish >= 0, publish, logs)
                 )
                 self._flush_locked(due_only=True)
 
@@ -480,7 +590,8 @@ class SessionWriter:
         ones are read, not written. A CDR session whose chunks hold one channel each (what
         this writer writes) is copied chunk by chunk with numpy, each chunk decompressed
         once; any other (JSON channels, chunks mixing channels, messages out of log-time
-        order) message by message. Raise DataError for an unreadable source, a ``keep`` mask
+        order) message by message. A ROS 2 channel is copied as recorded: the bytes, the
+        MCAP sequence and publish time. Raise DataError for an unreadable source, a ``keep`` mask
         of another length than its topic's messages, or a write error.
         """
         source = Path(source)
@@ -506,7 +617,11 @@ class SessionWriter:
         first: int | None = None
         last: int | None = None
         written = 0
-        for topic, log_time_ns, message in reader.messages(topics):
+        wanted = set(topics)
+        for channel, record in reader._records_in_time_order():
+            topic, log_time_ns = channel.topic, record.log_time
+            if topic not in wanted:
+                continue
             index = read[topic]
             read[topic] += 1
             first = log_time_ns if first is None else first
@@ -514,6 +629,13 @@ class SessionWriter:
             kept = keep.get(topic)
             if kept is not None and not kept[index]:
                 continue
+            if reader._is_ros2(channel):  # the bytes as recorded
+                ros_type = reader._schemas[channel.schema_id].name
+                self.write_ros2(topic, ros_type, record.data, record.sequence,
+                                record.publish_time, log_time_ns)  # fmt: skip
+                written += 1
+                continue
+            message = reader._decode(channel, record)
             if not isinstance(message, _MESSAGE_CLASSES):
                 raise DataError(f"cannot record {topic}: not a message", path=reader.path)
             self.write(topic, message, log_time_ns)
@@ -568,7 +690,10 @@ class SessionWriter:
             if topic in keep:
                 rows = keep[topic][done[topic] : done[topic] + rows.shape[0]]
             done[topic] += rows.shape[0]
-            written += self._add_located(topic, chunks.message_class, records, located, rows)
+            if chunks.message_class is None:
+                written += self._add_located_ros2(topic, chunks.ros_type, records, located, rows)
+            else:
+                written += self._add_located(topic, chunks.message_class, records, located, rows)
         return CopiedMessages(read, written, min(firsts, default=None), max(lasts, default=None))
 
     def _add_located(
@@ -601,6 +726,31 @@ class SessionWriter:
                     publish = np.where(t_ns >= 0, t_ns, logs[a:b])
                     self._mcap.add_messages(channel.channel_id, block, seq, logs[a:b], publish)
                 self._flush_locked(due_only=True)
+        return int(logs.size)
+
+    def _add_located_ros2(
+        self,
+        topic: str,
+        ros_type: str,
+        records: bytes,
+        located: mc.ChannelRecords,
+        rows: np.ndarray,
+    ) -> int:
+        """Write the ``rows`` of located ROS 2 messages as recorded (bytes, sequence, times)."""
+        logs = located.log_time_ns[rows]
+        offsets = located.payload_offset[rows]
+        sizes = located.payload_size[rows]
+        if logs.size == 0:
+            return 0
+        raw = np.frombuffer(records, dtype=np.uint8)
+        # the record's sequence and publish time precede its data (MESSAGE_FIELDS)
+        seq = np.ascontiguousarray(raw[offsets[:, None] - 20 + np.arange(4)]).view("<u4")
+        publish = np.ascontiguousarray(raw[offsets[:, None] - 8 + np.arange(8)]).view("<i8")
+        seq, publish = seq.reshape(-1), publish.reshape(-1)
+        bounds = [0, *(np.flatnonzero(np.diff(sizes)) + 1).tolist(), sizes.shape[0]]
+        for a, b in itertools.pairwise(bounds):
+            block = np.ascontiguousarray(_gather(raw, offsets[a:b], int(sizes[a])))
+            self.write_ros2_block(topic, ros_type, block, seq[a:b], publish[a:b], logs[a:b])
         return int(logs.size)
 
     # -- flushing, closing
@@ -699,9 +849,10 @@ class _TopicChunks:
     """The chunks holding one topic's messages, and their message indexes, in file order."""
 
     channel_id: int
-    message_class: type[msg.Message]
+    message_class: type[msg.Message] | None  # None: a ROS 2 channel (``ros_type``)
     refs: list[mc.ChunkRef]
     entries: list[np.ndarray]  # (K, 2) uint64 log time, offset; sorted by offset
+    ros_type: str = ""
 
 
 def _bulk_plan(
@@ -723,15 +874,18 @@ def _bulk_plan(
         if channel.topic not in wanted:
             continue
         schema = scan.schemas.get(channel.schema_id)
-        cls = None
+        cls: type[msg.Message] | None = None
+        ros_type = ""
         if schema is not None and schema.encoding == cdr.SCHEMA_ENCODING:
             cls = cdr.MESSAGE_CLASSES_BY_CDR_SCHEMA.get(schema.name)
-        if cls is None or channel.message_encoding != cdr.MESSAGE_ENCODING:
+            if cls is None and schema.name in ROS2_TYPES:
+                ros_type = schema.name
+        if (cls is None and not ros_type) or channel.message_encoding != cdr.MESSAGE_ENCODING:
             return None
         if channel.topic in plan:
             return None
         by_id[channel.id] = channel.topic
-        plan[channel.topic] = _TopicChunks(channel.id, cls, [], [])
+        plan[channel.topic] = _TopicChunks(channel.id, cls, [], [], ros_type)
     for _, body, _ in scan.loose:
         if mc.MESSAGE_FIELDS.unpack_from(data, body)[0] in by_id:
             return None
@@ -799,18 +953,63 @@ class _Loose:
     record: Message
 
 
+class _EstimateJoin:
+    """Pair one device's estimate halves (WrenchStamped, EstimateDiagnostics) by header stamp."""
+
+    def __init__(self, path: Path, topic: str) -> None:
+        self.path, self.topic = path, topic
+        self.wrenches: dict[int, tuple[int, Any]] = {}  # stamp -> (MCAP sequence, Wrench)
+        self.diagnostics: dict[int, Any] = {}  # stamp -> EstimateDiagnostics
+
+    def add(self, kind: str, record: Message) -> msg.ForceEstimateMessage | None:
+        """Add one half; return the estimate once both halves of its stamp are in."""
+        from teleop_force.ros2 import codec  # rosbags: for ROS 2 sessions only
+
+        try:
+            if kind == ESTIMATED_CF:
+                wrench = codec.decode_wrench(record.data)
+                diagnostics = self.diagnostics.pop(wrench.t_ns, None)
+                if diagnostics is None:
+                    _bounded_put(self.wrenches, wrench.t_ns, (record.sequence, wrench))
+                    return None
+                seq = record.sequence
+            else:
+                diagnostics = codec.decode_estimate_diagnostics(record.data)
+                half = self.wrenches.pop(diagnostics.t_ns, None)
+                if half is None:
+                    _bounded_put(self.diagnostics, diagnostics.t_ns, diagnostics)
+                    return None
+                seq, wrench = half
+            return codec.estimate_message(seq, wrench, diagnostics)
+        except MessageError as exc:
+            raise DataError(
+                f"bad estimate at log time {record.log_time} ns: {exc}",
+                path=self.path,
+                column=self.topic,
+            ) from None
+
+
+def _bounded_put(pending: dict[int, Any], stamp: int, value: Any) -> None:
+    """Remember one half; forget the oldest beyond :data:`_MAX_PENDING_HALVES`."""
+    pending[stamp] = value
+    if len(pending) > _MAX_PENDING_HALVES:
+        del pending[next(iter(pending))]
+
+
 class SessionReader:
-    """Read a session MCAP file, complete or truncated by a crash of its writer.
+    """Read a session MCAP file (ROS 2 or older), complete or truncated by a crash of its writer.
 
     Opening lists the file's records and raises DataError naming the file for anything that
     is not a readable MCAP; a chunk with complete message indexes is not decompressed then
     (its counts come from the indexes, its CRC is checked when it is read), so opening
     costs little more than reading the schemas and indexes. Iterating yields ``(topic, log_time_ns,
     message)`` in log-time order (equal log times: in file order), decompressing one chunk at a
-    time; ``message`` is a :mod:`teleop_force.transport.messages` object for this project's
-    schemas (CDR ``teleop_force/msg/...`` or, in recordings made before the CDR encoding, JSON
-    ``teleop_force....``), the decoded JSON value for other JSON channels, and the raw bytes
-    otherwise. :attr:`topics` maps each key to its schema name.
+    time; ``message`` is a :mod:`teleop_force.transport.messages` object for the ROS 2 types
+    of :mod:`teleop_force.ros2.topics` (:meth:`messages`) and this project's older schemas (CDR
+    ``teleop_force/msg/...`` or JSON ``teleop_force....``), the decoded JSON value for other
+    JSON channels, and the raw bytes otherwise (:meth:`raw_messages`: every message as
+    stored). :attr:`topics` maps each channel to its schema name, :attr:`streams` each stream
+    to its channel.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
@@ -968,14 +1167,45 @@ class SessionReader:
         return sum(self._counts.values())
 
     def devices(self) -> list[str]:
-        """Device ids that have at least one project channel, sorted."""
-        found = set()
-        for topic in self.topics:
-            try:
-                found.add(keys.parse(topic).device)
-            except TeleopForceError:
-                continue
-        return sorted(found)
+        """Device ids that have at least one stream (:class:`Stream`), sorted."""
+        return sorted({stream.device for stream in self.streams})
+
+    @property
+    def streams(self) -> dict[Stream, str]:
+        """Map each recorded stream to its channel topic (a ROS 2 channel before an old one)."""
+        found: dict[Stream, str] = {}
+        for channel in sorted(self._channels.values(), key=lambda c: not self._is_ros2(c)):
+            stream = parse_stream(channel.topic)
+            if stream is not None:
+                found.setdefault(stream, channel.topic)
+        return found
+
+    def stream_topic(self, device: str, kind: str) -> str | None:
+        """Return the channel topic of ``device``'s ``kind`` stream (``None``: not recorded)."""
+        return self.streams.get(Stream(device, kind))
+
+    def stream_count(self, device: str, kind: str) -> int:
+        """Return the messages recorded on ``device``'s ``kind`` stream."""
+        topic = self.stream_topic(device, kind)
+        return 0 if topic is None else self.message_counts.get(topic, 0)
+
+    @property
+    def ros2(self) -> bool:
+        """Whether the session holds ROS 2 channels (``ros2msg`` schemas of ROS 2 types)."""
+        return any(self._is_ros2(channel) for channel in self._channels.values())
+
+    def is_ros2_topic(self, topic: str) -> bool:
+        """Whether channel ``topic`` carries ROS 2 messages (a ``ros2msg`` schema of ROS 2)."""
+        return any(c.topic == topic and self._is_ros2(c) for c in self._channels.values())
+
+    def _is_ros2(self, channel: Channel) -> bool:
+        schema = self._schemas.get(channel.schema_id)
+        return (
+            schema is not None
+            and schema.encoding == cdr.SCHEMA_ENCODING
+            and channel.message_encoding == cdr.MESSAGE_ENCODING
+            and schema.name not in cdr.MESSAGE_CLASSES_BY_CDR_SCHEMA
+        )
 
     # -- iteration
 
@@ -984,12 +1214,82 @@ class SessionReader:
         return self.messages()
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, Any]]:
-        """Iterate ``(topic, log_time_ns, message)`` in log-time order, optionally filtered."""
+        """Iterate ``(topic, log_time_ns, message)`` in log-time order, optionally filtered.
+
+        A ROS 2 channel's message is decoded with :mod:`teleop_force.ros2.codec` into the
+        project's message of its stream (``seq``: the MCAP sequence); an estimate's two halves
+        (``/<device>/estimated_cf`` and ``/<device>/estimate_diagnostics``, one header stamp)
+        are joined (:func:`~teleop_force.ros2.codec.estimate_message`) into one
+        ForceEstimateMessage on the ``estimated_cf`` topic, yielded with the later half's
+        log time; the diagnostics are not yielded on their own, and a half whose other half
+        never comes is dropped. Other ROS 2 types are yielded as bytes.
+        """
+        wanted = None if topics is None else set(topics)
+        joins: dict[str, _EstimateJoin] = {}
+        for channel, record in self._records_in_time_order():
+            ros2 = self._is_ros2(channel)
+            if ros2:
+                stream = parse_stream(channel.topic)
+                if stream is not None and stream.kind in (ESTIMATED_CF, ESTIMATE_DIAGNOSTICS):
+                    target = Stream(stream.device, ESTIMATED_CF).ros2_topic()
+                    if wanted is not None and target not in wanted:
+                        continue
+                    join = joins.get(stream.device)
+                    if join is None:
+                        join = joins[stream.device] = _EstimateJoin(self.path, target)
+                    joined = join.add(stream.kind, record)
+                    if joined is not None:
+                        yield target, record.log_time, joined
+                    continue
+            if wanted is not None and channel.topic not in wanted:
+                continue
+            if ros2:
+                yield channel.topic, record.log_time, self._decode_ros2(channel, record)
+            else:
+                yield channel.topic, record.log_time, self._decode(channel, record)
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        """Iterate the messages as stored (:class:`RawMessage`), in log-time order."""
         wanted = None if topics is None else set(topics)
         for channel, record in self._records_in_time_order():
             if wanted is not None and channel.topic not in wanted:
                 continue
-            yield channel.topic, record.log_time, self._decode(channel, record)
+            schema = self._schemas.get(channel.schema_id)
+            yield RawMessage(
+                topic=channel.topic,
+                schema_name="" if schema is None else schema.name,
+                message_encoding=channel.message_encoding,
+                log_time_ns=record.log_time,
+                publish_time_ns=record.publish_time,
+                sequence=record.sequence,
+                data=record.data,
+            )
+
+    def _decode_ros2(self, channel: Channel, record: Message) -> Any:
+        from teleop_force.ros2 import codec  # rosbags: for ROS 2 sessions only
+
+        schema = self._schemas[channel.schema_id]
+        stream = parse_stream(channel.topic)
+        kind = None if stream is None else stream.kind
+        seq, data = record.sequence, record.data
+        try:
+            if schema.name == interfaces.JOINT_STATE:
+                if kind == SETPOINT_JS:
+                    return codec.decode_joint_setpoint(data, seq)[0]
+                return codec.decode_joint_state(data, seq)[0]
+            if schema.name == interfaces.WRENCH_STAMPED:
+                return codec.decode_contact_force(data, seq)
+            if schema.name == interfaces.STATUS:
+                return codec.decode_status(data, seq)
+            if schema.name == interfaces.SERVICE_DIAGNOSTICS:
+                return codec.decode_service_diagnostics(data, seq)
+        except MessageError as exc:
+            raise DataError(
+                f"bad {schema.name} at log time {record.log_time} ns: {exc}",
+                path=self.path,
+                column=channel.topic,
+            ) from None
+        return data
 
     def _records_in_time_order(self) -> Iterator[tuple[Channel, Message]]:
         # Heap entries: (time, order, index, payload). A chunk enters as a placeholder keyed by
@@ -1127,9 +1427,7 @@ def export_session_json(
 
 
 def _pick_device(reader: SessionReader, device: str | None) -> str:
-    with_js = sorted(
-        d for d in reader.devices() if reader.message_counts.get(keys.measured_js(d), 0) > 0
-    )
+    with_js = sorted(d for d in reader.devices() if reader.stream_count(d, MEASURED_JS) > 0)
     if device is not None:
         keys.validate_chunk(device)
         if device not in with_js:
@@ -1140,17 +1438,19 @@ def _pick_device(reader: SessionReader, device: str | None) -> str:
             )
         return device
     if not with_js:
-        raise DataError(f"no joint states ({keys.measured_js('<device>')})", path=reader.path)
+        raise DataError(
+            "no joint states (/<device>/measured_js or omni/<device>/measured_js)",
+            path=reader.path,
+        )
     primary = reader.metadata.get("primary_device")
     if primary in with_js:
         return primary
     if len(with_js) == 1:
         return with_js[0]
-    counts = reader.message_counts
     with_force = [
         d
         for d in with_js
-        if counts.get(keys.measured_cf(d), 0) + counts.get(keys.estimated_cf(d), 0) > 0
+        if reader.stream_count(d, TRUE_CF) + reader.stream_count(d, ESTIMATED_CF) > 0
     ]
     if len(with_force) == 1:
         return with_force[0]
@@ -1166,21 +1466,28 @@ def read_session_as_recording(path: str | os.PathLike[str], device: str | None =
 
     Samples are the ``measured_js`` messages of ``device`` ordered by their source stamp
     (duplicate stamps dropped), with ``t_s`` counted from the first one; ``tau_nm`` is their
-    ``effort`` (commanded torque). The ``measured_cf`` force, if recorded, is linearly
-    interpolated at those stamps (held constant beyond its first and last sample).
+    ``effort`` (commanded torque). The true tip force (``true_cf``; ``measured_cf`` in
+    sessions recorded before ROS 2), if recorded, is linearly interpolated at those stamps
+    (held constant beyond its first and last sample).
     Without ``device``: the metadata's ``primary_device``, else the only device with joint
     states, else the only one of those with a force channel.
     """
     reader = SessionReader(path)
     device = _pick_device(reader, device)
-    js_key, cf_key = keys.measured_js(device), keys.measured_cf(device)
-    joint_states = read_joint_state_arrays(reader.path, js_key)
+    js_topic = reader.stream_topic(device, MEASURED_JS)
+    cf_topic = reader.stream_topic(device, TRUE_CF)
+    assert js_topic is not None  # _pick_device's contract
+    joint_states = read_joint_state_arrays(reader.path, js_topic)
     f_stamps: list[int] = []
     forces: list[tuple[float, ...]] = []
-    for _, _, message in reader.messages([cf_key]):
-        if isinstance(message, msg.ContactForce):
-            f_stamps.append(message.t_ns)
-            forces.append(message.f_n)
+    wrenches = None if cf_topic is None else read_wrench_arrays(reader.path, cf_topic)
+    if wrenches is not None:  # a ROS 2 channel in one layout: as arrays
+        f_stamps, forces = wrenches.t_ns.tolist(), wrenches.force_n.tolist()
+    elif cf_topic is not None:
+        for _, _, message in reader.messages([cf_topic]):
+            if isinstance(message, msg.ContactForce):
+                f_stamps.append(message.t_ns)
+                forces.append(message.f_n)
     n_joints = joint_states.n_joints
     t_ns = joint_states.t_ns
     table = np.hstack((joint_states.q_rad, joint_states.effort_nm))

@@ -45,11 +45,21 @@ class Publisher:
         self._publisher = pubsub.declare_data_publisher(node.session, key)
         self._token = pubsub.declare_token(node.session, entity.token_key)
 
-    def publish(self, payload: bytes, source_timestamp_ns: int | None = None) -> Attachment:
-        """Put ``payload`` with the next sequence number; return the attachment sent."""
+    def publish(
+        self,
+        payload: bytes,
+        source_timestamp_ns: int | None = None,
+        *,
+        sequence_number: int | None = None,
+    ) -> Attachment:
+        """Put ``payload`` with the next sequence number; return the attachment sent.
+
+        ``sequence_number``: send this one instead (a replay keeps the recorded numbers);
+        the count goes on after it.
+        """
         with self._lock:
-            seq = self._next_seq
-            self._next_seq += 1
+            seq = self._next_seq if sequence_number is None else sequence_number
+            self._next_seq = seq + 1
         stamp = time.time_ns() if source_timestamp_ns is None else source_timestamp_ns
         attachment = Attachment(seq, stamp, self.gid)
         try:

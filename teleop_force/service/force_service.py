@@ -60,10 +60,11 @@ own, never on a Zenoh receive thread: a model is read and checked off the estima
 then swapped in between two samples (the new estimator starts a fresh stream); a recording
 started at run time records what ``--record`` would, into a new file.
 
-Recording (``--record PATH``): every joint state (of every device), setpoint, true contact
-force and status received, and every estimate published, to an MCAP session
-(:class:`~teleop_force.io.mcap_session.SessionWriter`) whose channels are the Zenoh keys, with
-metadata ``primary_device=<device>``.
+Recording (``--record PATH``, or the ``record`` control): every ROS 2 message of the domain
+as received (:class:`~teleop_force.service.ros2_recorder.Ros2Recorder`, the session recorder's
+own: a FIFO subscriber on ``<ROS_DOMAIN_ID>/**`` drained by a thread), the estimates this
+service publishes included (a session hears its own publications), to an MCAP session of
+profile ``ros2`` with metadata ``primary_device=<device>``, the model and the estimator.
 
 Run: ``python -m teleop_force.service.force_service --device slave --connect tcp/127.0.0.1:7447``.
 """
@@ -135,10 +136,11 @@ from teleop_force.service.counters import (
     JointStateCounters,
     MalformedCounter,
 )
-from teleop_force.service.recorder import BackgroundRecorder
 from teleop_force.service.recording_state import RecordingState
 from teleop_force.service.residual_watch import ResidualWatch
 from teleop_force.service.ros2_edge import Ros2Edge
+from teleop_force.service.ros2_recorder import PROFILE as RECORDING_PROFILE
+from teleop_force.service.ros2_recorder import Ros2Recorder, recorded_key
 from teleop_force.service.stream_clock import StreamClock
 from teleop_force.service.watch_residual import WatchResidual
 from teleop_force.transport import keys
@@ -157,8 +159,6 @@ ROLE: Final = "service"
 SEQ_MASK: Final = 0xFFFF_FFFF
 #: The control thread is waited for at most this long on close [s].
 DRAIN_TIMEOUT_S: Final = 10.0
-#: Kinds recorded besides the device's own joint states and estimates.
-_RECORDED_KINDS: Final = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
 #: A joint-state value (rad, rad/s, N m) beyond this is implausible: counted as malformed.
 MAX_ABS_JOINT_VALUE: Final = 1e6
 #: ROS 2's largest domain id (``ROS_DOMAIN_ID``: 0..232 on Linux, as DDS maps it to ports).
@@ -287,9 +287,10 @@ class ForceService:
         )  # fmt: skip
         self._floor_received = 0
         if self.config.record_path is not None and not self.config.zenoh_floor:
-            self.recording.recorder = BackgroundRecorder(
-                self._open_writer(self.config.record_path), self._count_malformed
-            )
+            self.recording.recorder = Ros2Recorder(
+                session, self._open_writer(self.config.record_path), self._count_malformed,
+                domain_id=self.config.domain_id,
+            )  # fmt: skip
 
     def _init_runtime(self) -> None:
         """Prepare the lock, queues, threads, Zenoh entity slots and the run-time bookkeeping."""
@@ -317,7 +318,9 @@ class ForceService:
         }
         if self.config.master is not None:
             metadata["master_device"] = self.config.master
-        return SessionWriter(path, metadata, flush_interval_s=self.config.record_flush_s)
+        return SessionWriter(
+            path, metadata, flush_interval_s=self.config.record_flush_s, profile=RECORDING_PROFILE
+        )
 
     def start(self) -> ForceService:
         """Declare the publisher, subscribers, queryables and token; return self."""
@@ -341,7 +344,7 @@ class ForceService:
         else:
             edge.subscribe()
             if self.recording.recorder is not None:
-                self._subscribe_recorded(self._on_recorded)
+                self.recording.recorder.start()
         self._entities.append(
             declare_subscriber(session, keys.service_adapt(device), self._on_adapt)
         )
@@ -419,20 +422,10 @@ class ForceService:
             if not isinstance(exc, TeleopForceError):
                 self._log_once(f"estimator: unexpected {type(exc).__name__}: {exc}")
 
-    def _on_recorded(self, sample: zenoh.Sample) -> None:
-        """Every other recorded key (the own joint states come through :meth:`_on_own_js`)."""
-        arrival_ns = time.time_ns()
-        key = str(sample.key_expr)
-        recorder = self.recording.recorder
-        if key == self._own_js_key or recorder is None:
-            return
-        recorder.submit(key, sample.payload.to_bytes(), arrival_ns)  # decoded by its thread
-
     def _subscribe_recorded(self, callback: Any) -> None:
-        for kind in _RECORDED_KINDS:
-            self.recording.entities.append(
-                declare_subscriber(self.session, keys.any_device(kind), callback, direct=True)
-            )
+        """Zenoh floor: the recorded key expression, every sample handed to ``callback``."""
+        key = recorded_key(self.domain_id)
+        self.recording.entities.append(declare_subscriber(self.session, key, callback, direct=True))
 
     def _on_own_js_floor(self, payload: bytes, attachment: Attachment) -> None:
         """Zenoh floor (``zenoh_floor``): publish a fixed estimate-sized pair, nothing else."""
@@ -682,13 +675,21 @@ class ForceService:
         path = self.allowed_records.new_recording(path_text)
         create_exclusively(path)
         try:
-            recorder = BackgroundRecorder(self._open_writer(path), self._count_malformed)
+            writer = self._open_writer(path)
         except TeleopForceError:
+            _remove_quietly(path)
+            raise
+        recorder = Ros2Recorder(
+            self.session, writer, self._count_malformed, domain_id=self.config.domain_id
+        )
+        try:
+            recorder.start()
+        except TeleopForceError:
+            recorder.close()
             _remove_quietly(path)
             raise
         with self._lock:
             self.recording.recorder = recorder
-        self._subscribe_recorded(self._on_recorded)
         log(ROLE, f"recording to {path}")
         return path
 
@@ -697,7 +698,6 @@ class ForceService:
         recorder = self.recording.recorder
         if recorder is None:
             raise ControlError("not recording")
-        undeclare_all(*self.recording.take_entities())
         with self._lock:
             self.recording.recorder = None
         recorder.close()

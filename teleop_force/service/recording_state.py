@@ -1,6 +1,6 @@
 """What the force service records: the open recording, its subscriptions, the last one closed.
 
-The recording itself (a :class:`~teleop_force.service.recorder.BackgroundRecorder`) is opened
+The recording itself (a :class:`~teleop_force.service.ros2_recorder.Ros2Recorder`) is opened
 and closed by the service, at start-up (``--record``) or on request; :class:`RecordingState`
 keeps track of it for the service's callbacks and statistics.
 """
@@ -9,15 +9,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from teleop_force.service.recorder import BackgroundRecorder
+from teleop_force.service.ros2_recorder import Ros2Recorder
 
 
 class RecordingState:
-    """The recording open (if any), the subscriptions feeding it, and the last one's counters.
+    """The recording open (if any), the floor's subscriptions, and the last one's counters.
 
     Attributes:
         recorder: The recording open (``None``: not recording).
-        entities: Subscriptions to the recorded keys besides the device's joint states.
+        entities: The Zenoh floor's subscription to the recorded keys (the recorder has its own).
         last: Final counters of the last recording closed (``None``: none yet).
 
     """
@@ -26,7 +26,7 @@ class RecordingState:
 
     def __init__(self) -> None:
         """Start not recording."""
-        self.recorder: BackgroundRecorder | None = None
+        self.recorder: Ros2Recorder | None = None
         self.entities: list[Any] = []
         self.last: dict[str, Any] | None = None
 

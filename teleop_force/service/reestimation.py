@@ -20,14 +20,19 @@ the order it received the joint states (the recording's log-time order):
   estimator's numbers, to rounding); one that is not finite is counted as an error and the
   next joint state starts a new stream, as the service does.
 
-The new recording holds every recorded joint state (of every device), setpoint, true contact
-force and status, with their recorded log times, and one ``estimated_cf`` per estimate:
-``seq`` counts the estimates published (from 0), ``source_seq`` is the joint state's ``seq``,
-exactly as live. What differs from a live run: nothing is published over Zenoh, the
-messages keep their recorded stamps (a replay over Zenoh shifts them to the present), and an
-estimate's ``t_ns`` (its publish time, which no offline computation has) is its joint state's
-recorded log time, the time the recording service received it, so latencies read off the new
-recording are the slave-to-service transport alone. The model is fixed: no online adaptation.
+The new recording is a ROS 2 session (MCAP profile ``ros2``), as the service records one: every
+recorded joint state (of every device), setpoint, true contact force and status on its ROS 2
+topic with its recorded log time (a session recorded from ROS 2: the bytes, sequence and
+publish time as recorded, copied chunk by chunk; an older one: encoded as a replay publishes
+it), and per estimate a ``/<device>/estimated_cf`` WrenchStamped and a
+``/<device>/estimate_diagnostics`` with one header stamp: their MCAP sequence counts the
+estimates published (from 1, as the service's publishers do), ``source_sequence`` is the joint
+state's sequence number, exactly as live. What differs from a live run: nothing is published
+over Zenoh, the messages keep their recorded stamps (a replay over Zenoh shifts them to the
+present), and an estimate's stamp (its publish time, which no offline computation has) is its
+joint state's recorded log time, the time the recording service received it, so latencies read
+off the new recording are the slave-to-service transport alone. The model is fixed: no online
+adaptation.
 """
 
 from __future__ import annotations
@@ -41,16 +46,29 @@ from typing import Any, Final
 
 import numpy as np
 
-from teleop_force.errors import DataError, MessageError
+from teleop_force.errors import ConfigurationError, DataError, MessageError
 from teleop_force.estimation.batch import BatchEstimates, BatchEstimator
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.cdr_columns import JointStateArrays
-from teleop_force.io.mcap_session import SessionReader, SessionWriter, read_joint_state_arrays
-from teleop_force.io.replay import primary_device, replayed_topics
+from teleop_force.io.mcap_session import (
+    MEASURED_JS,
+    RawMessage,
+    SessionReader,
+    SessionWriter,
+    read_joint_state_arrays,
+)
+from teleop_force.io.replay import (
+    check_one_kind,
+    primary_device,
+    replayed_topics,
+    ros2_payload,
+    ros2_topic,
+)
+from teleop_force.io.ros2_columns import EstimateRows, estimate_blocks
+from teleop_force.ros2 import topics as ros_topics
 from teleop_force.service.counters import JointStateCounters, MalformedCounter
-from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, SEQ_MASK
+from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE
 from teleop_force.service.stream_clock import StreamClock
-from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 
 #: More estimates than this that are not finite: the model is unusable, re-estimation stops.
@@ -100,7 +118,7 @@ class _ServiceRun:
     source_seq: np.ndarray  # their seq
     published: np.ndarray  # mask over ``estimated``: an estimate was published
     estimates: BatchEstimates  # rows for ``estimated`` (unpublished rows: errors)
-    plausible: np.ndarray  # mask over the joint states: recorded (not malformed)
+    plausible: np.ndarray  # mask over the joint states: estimated on (not malformed)
     joint_states: JointStateCounters
     malformed: MalformedCounter
     stream_restarts: int
@@ -129,10 +147,11 @@ def reestimate_session(
     if target.exists() and target.resolve() == source.resolve():
         raise DataError("the re-estimated recording cannot overwrite its source", path=target)
     device = primary_device(reader, device)
-    js_key = keys.measured_js(device)
+    js_key = reader.stream_topic(device, MEASURED_JS)
     topics = replayed_topics(reader)
-    if js_key not in topics:
-        raise DataError(f"no joint states of {device!r} ({js_key}) to re-estimate", path=source)
+    if js_key is None or js_key not in topics:
+        raise DataError(f"no joint states of {device!r} to re-estimate", path=source)
+    ros_topics.validate_device(device)
     arrays = read_joint_state_arrays(source, js_key)
     if arrays.n_joints != model.n_joints:
         raise DataError(
@@ -152,12 +171,10 @@ def reestimate_session(
     master = reader.metadata.get("master_device")
     if master:
         metadata["master_device"] = master
-    estimate_key = keys.estimated_cf(device)
-    with SessionWriter(target, metadata) as writer:
-        replayed, first_log, last_log, written = _copy(
-            reader, writer, topics, js_key, run.plausible
-        )
-        written += _write_estimates(writer, estimate_key, run, arrays.seq, arrays.log_time_ns)
+    with SessionWriter(target, metadata, profile="ros2") as writer:
+        everything = np.ones(run.plausible.shape, dtype=bool)  # recorded as received
+        replayed, first_log, last_log, written = _copy(reader, writer, topics, js_key, everything)
+        written += _write_estimates(writer, device, run, arrays.seq, arrays.log_time_ns)
     span = 0.0 if first_log is None or last_log is None else (last_log - first_log) * 1e-9
     duration = time.perf_counter() - started_s
     stats = _service_stats(model, model_path, device, run, target, written, duration)
@@ -175,10 +192,12 @@ def _copy(
 ) -> tuple[dict[str, int], int | None, int | None, int]:
     """Copy the replayed messages to ``writer`` (of ``js_key`` only the ``recorded`` ones).
 
-    Chunk by chunk (:meth:`SessionWriter.copy_from`): the messages :func:`_copy_replayed`
-    writes, without a Python object per message. Return the messages read per topic, the
-    first and last log time and the messages written.
+    A ROS 2 session chunk by chunk (:meth:`SessionWriter.copy_from`), without a Python object
+    per message; an older one as :func:`_copy_replayed`. Return the messages read per ROS 2
+    topic, the first and last log time and the messages written.
     """
+    if not check_one_kind(reader, topics):
+        return _copy_replayed(reader, writer, topics, js_key, recorded)
     copied = writer.copy_from(reader.path, topics, keep={js_key: recorded})
     return copied.read, copied.first_log_time_ns, copied.last_log_time_ns, copied.written
 
@@ -192,19 +211,22 @@ def _copy_replayed(
 ) -> tuple[dict[str, int], int | None, int | None, int]:
     """Copy the replayed messages to ``writer`` (of ``js_key`` only the ``recorded`` ones).
 
-    Message by message (the reference :func:`_copy` is checked against). Return the messages
-    read per topic, the first and last log time and the messages written.
+    Message by message (the reference :func:`_copy` is checked against): ROS 2 channels as
+    recorded, older ones encoded as a replay publishes them, on their ROS 2 topics. Return the
+    messages read per ROS 2 topic, the first and last log time and the messages written.
     """
-    replayed = dict.fromkeys(topics, 0)
+    names = {topic: ros2_topic(topic) for topic in topics}
+    replayed = dict.fromkeys(names.values(), 0)
     first_log: int | None = None
     last_log: int | None = None
     written = 0
-    batch_topics: list[str] = []
-    batch_payloads: list[bytes] = []
-    batch_logs: list[int] = []
     js_index = 0
-    for topic, log_ns, message in reader.messages(topics):
-        replayed[topic] += 1
+    if check_one_kind(reader, topics):
+        rows = ((raw.topic, raw.log_time_ns, raw) for raw in reader.raw_messages(topics))
+    else:
+        rows = ((t, log_ns, message) for t, log_ns, message in reader.messages(topics))
+    for topic, log_ns, item in rows:
+        replayed[names[topic]] += 1
         if first_log is None:
             first_log = log_ns
         last_log = log_ns
@@ -212,25 +234,19 @@ def _copy_replayed(
             js_index += 1
             if not recorded[js_index - 1]:
                 continue
-        batch_topics.append(topic)
-        batch_payloads.append(message.encode())
-        batch_logs.append(log_ns)
-        if len(batch_topics) >= _WRITE_BATCH:
-            written += _write(writer, batch_topics, batch_payloads, batch_logs)
-            batch_topics, batch_payloads, batch_logs = [], [], []
-    written += _write(writer, batch_topics, batch_payloads, batch_logs)
+        if isinstance(item, RawMessage):
+            writer.write_ros2(topic, item.schema_name, item.data, item.sequence,
+                              item.publish_time_ns, log_ns)  # fmt: skip
+        else:
+            try:
+                encoded = ros2_payload(item)
+            except (MessageError, ConfigurationError) as exc:
+                raise DataError(f"cannot record {topic}: {exc}", path=reader.path) from None
+            if encoded is None:
+                raise DataError(f"cannot record {topic}: not a message", path=reader.path)
+            writer.write_ros2(names[topic], encoded[0], encoded[1], item.seq, item.t_ns, log_ns)
+        written += 1
     return replayed, first_log, last_log, written
-
-
-def _write(writer: SessionWriter, topics: list[str], payloads: list[bytes], logs: list[int]) -> int:
-    """Write a batch of payloads; return how many (DataError if one is refused)."""
-    if not topics:
-        return 0
-    rejected = writer.write_payloads(topics, payloads, logs)
-    if rejected:
-        index, error = rejected[0]
-        raise DataError(f"cannot record {topics[index]}: {error}", path=writer.path)
-    return len(topics)
 
 
 def _run_service(model: DynamicModel, key: str, arrays: JointStateArrays) -> _ServiceRun:
@@ -333,60 +349,53 @@ def _concatenate(parts: list[BatchEstimates], n: int) -> BatchEstimates:
 
 def _write_estimates(
     writer: SessionWriter,
-    key: str,
+    device: str,
     run: _ServiceRun,
     seq: np.ndarray,
     log_time_ns: np.ndarray,
 ) -> int:
-    """Write the estimates as the service would have recorded them; return how many.
+    """Write the estimates as the service would have recorded them; return the messages.
 
-    ``seq`` counts the estimates published, ``source_seq`` is the joint state's, and the
-    publish time ``t_ns`` (and log time) is the joint state's recorded log time.
+    Two per estimate (WrenchStamped, EstimateDiagnostics), built with numpy from one encoded
+    by :func:`~teleop_force.ros2.codec.encode_estimate`: MCAP sequence = the count of
+    estimates published (from 1), ``source_sequence`` the joint state's, stamp, publish and
+    log time the joint state's recorded log time.
     """
+    from teleop_force.ros2 import codec  # rosbags: when re-estimating
+
     rows = np.flatnonzero(run.published)
-    sources = seq[run.estimated[rows]]
-    logs = log_time_ns[run.estimated[rows]]
-    payloads = _estimate_payloads(run.estimates, rows, sources, logs)
-    logs_list = logs.tolist()
-    written = 0
-    for start in range(0, len(payloads), _WRITE_BATCH):
-        stop = start + _WRITE_BATCH
-        part = payloads[start:stop]
-        written += _write(writer, [key] * len(part), part, logs_list[start:stop])
-    return written
-
-
-def _estimate_payloads(
-    est: BatchEstimates, rows: np.ndarray, source_seq: np.ndarray, t_ns: np.ndarray
-) -> list[bytes]:
-    """Return the wire ForceEstimate of each of ``rows`` of ``est``, built with numpy.
-
-    The bytes of :func:`~teleop_force.transport.messages.pack_force_estimate` (``seq``
-    counting from 0, ``t_ns`` and ``source_seq`` given per row), without a call per row.
-    """
+    if rows.size == 0:
+        return 0
+    est = run.estimates
     n = est.tau_external_nm.shape[1]
-    layout = np.dtype(
-        [("magic", "S2"), ("version", "u1"), ("type", "u1"), ("seq", "<u4"), ("t_ns", "<i8"),
-         ("source_seq", "<u4"), ("n", "u1"), ("values", "<f8", (3 + 4 * n,)),
-         ("mask", "u1", ((n + 7) // 8,))]
-    )  # fmt: skip
-    block = np.empty(rows.size, dtype=layout)
-    block["magic"] = m.MAGIC
-    block["version"] = m.VERSION
-    block["type"] = int(m.MessageType.FORCE_ESTIMATE)
-    block["seq"] = np.arange(rows.size, dtype=np.int64) & SEQ_MASK
-    block["t_ns"] = t_ns
-    block["source_seq"] = source_seq
-    block["n"] = n
-    block["values"] = np.concatenate(
-        (est.force_tip_in_base_n[rows], est.tau_external_nm[rows], est.coverage_weight[rows],
-         est.tau_motor_filtered_nm[rows], est.tau_model_filtered_nm[rows]),
-        axis=1,
-    )  # fmt: skip
-    block["mask"] = np.packbits(est.on_trained_ground[rows], axis=1, bitorder="little")
-    raw = block.tobytes()
-    width = layout.itemsize
-    return [raw[i : i + width] for i in range(0, len(raw), width)]
+    logs = log_time_ns[run.estimated[rows]]
+    values = EstimateRows(
+        t_ns=logs,
+        source_sequence=seq[run.estimated[rows]].astype(np.int64),
+        force_n=est.force_tip_in_base_n[rows],
+        tau_ext_nm=est.tau_external_nm[rows],
+        coverage_weight=est.coverage_weight[rows],
+        on_trained_ground=est.on_trained_ground[rows],
+        tau_motor_filtered_nm=est.tau_motor_filtered_nm[rows],
+        tau_model_filtered_nm=est.tau_model_filtered_nm[rows],
+    )
+    zeros = (0.0,) * n
+    template = m.ForceEstimateMessage(0, 0, 0, (0.0,) * 3, zeros, (False,) * n, zeros, zeros,
+                                      zeros)  # fmt: skip
+    names = ros_topics.model_joint_names(n)
+    try:
+        wrench, diagnostics = codec.encode_estimate(template, names, ros_topics.BASE_FRAME)
+        wrenches, reports = estimate_blocks(wrench, diagnostics, values)
+    except MessageError as exc:
+        raise DataError(f"cannot record the estimates: {exc}", path=writer.path) from None
+    counter = np.arange(1, rows.size + 1, dtype=np.int64)
+    for topic, block in ((ros_topics.ESTIMATED_CF, wrenches),
+                         (ros_topics.ESTIMATE_DIAGNOSTICS, reports)):  # fmt: skip
+        for start in range(0, rows.size, _WRITE_BATCH):
+            part = slice(start, start + _WRITE_BATCH)
+            writer.write_ros2_block(ros_topics.topic_name(device, topic), topic.ros_type,
+                                    block[part], counter[part], logs[part], logs[part])  # fmt: skip
+    return 2 * int(rows.size)
 
 
 def _service_stats(

@@ -29,6 +29,7 @@ from teleop_force.transport import messages as m
 from teleop_force.transport.stream_stats import SequenceTracker
 
 EPOCH_NS = 1_700_000_000_000_000_000
+SLAVE_JS, SLAVE_ESTIMATES = "/slave/measured_js", "/slave/estimated_cf"
 #: The top-level keys of ``replay --json`` (docs/cli.md), ``service`` with --with-service.
 REPLAY_KEYS = {"device", "published", "duration_s", "recorded_span_s", "matched", "stopped"}
 ESTIMATE_FIELDS = (
@@ -226,18 +227,19 @@ def test_reestimation_records_what_the_service_would(tmp_path, model, palpation,
     assert js_stats["stream_restarts"] == clock.restarts == 3
     assert service["estimates"]["published"] == len(expected)
     assert service["malformed"]["dropped"] == 1
-    assert payload["published"][keys.measured_js("slave")] == len(states)
-    assert keys.estimated_cf("slave") not in payload["published"]
+    assert payload["published"][SLAVE_JS] == len(states)
+    assert SLAVE_ESTIMATES not in payload["published"]
 
     reader = SessionReader(target)
     assert reader.metadata["primary_device"] == "slave"
     assert reader.metadata["source"] == "replay"
     counts = reader.message_counts
-    assert counts[keys.measured_js("slave")] == len(states) - 1  # the malformed one dropped
-    for key in (keys.measured_js("master"), keys.setpoint_js("master"), keys.measured_cf("slave")):
-        assert counts[key] == len(states)
-    estimates = [e for _, _, e in reader.messages([keys.estimated_cf("slave")])]
-    assert [e.seq for e in estimates] == list(range(len(expected)))
+    assert counts[SLAVE_JS] == len(states)  # as received: the malformed one too
+    for topic in ("/master/measured_js", "/master/setpoint_js", "/slave/true_cf"):
+        assert counts[topic] == len(states)
+    assert counts["/slave/estimate_diagnostics"] == counts[SLAVE_ESTIMATES] == len(expected)
+    estimates = [e for _, _, e in reader.messages([SLAVE_ESTIMATES])]
+    assert [e.seq for e in estimates] == list(range(1, len(expected) + 1))  # as published
     assert [e.source_seq for e in estimates] == [seq for seq, _ in expected]
     logs: dict[int, int] = {}
     for log, js in states:
@@ -282,7 +284,7 @@ def test_a_failed_estimate_restarts_the_stream_as_the_service_does(
     assert f"seq {failing_seq}" in service["estimates"]["last_error"]
     expected, _, clock = _service_emulation(model, states, failing_seq)
     assert service["joint_states"]["stream_restarts"] == clock.restarts
-    estimates = [e for _, _, e in SessionReader(target).messages([keys.estimated_cf("slave")])]
+    estimates = [e for _, _, e in SessionReader(target).messages([SLAVE_ESTIMATES])]
     assert [e.source_seq for e in estimates] == [seq for seq, _ in expected]
     for got, (_, want) in zip(estimates, expected, strict=True):
         np.testing.assert_allclose(got.f_n, want.force_tip_in_base_n, atol=1e-9, rtol=0)
@@ -334,7 +336,7 @@ def test_batch_reestimation_equals_the_live_service(tmp_path, model, palpation, 
 
     def estimates(path):
         reader = SessionReader(path)
-        return [e for _, _, e in reader.messages([keys.estimated_cf("slave")])]
+        return [e for _, _, e in reader.messages([SLAVE_ESTIMATES])]
 
     a, b = estimates(live), estimates(batch)
     assert len(a) == len(b) > 2000
@@ -349,4 +351,5 @@ def test_batch_reestimation_equals_the_live_service(tmp_path, model, palpation, 
             ), (x.source_seq, name, u, v)
         assert x.on_trained_ground == y.on_trained_ground
     counts_live = SessionReader(live).message_counts
+    counts_live.pop("/slave/service/diagnostics", None)  # the live residual watch's, 1 Hz
     assert SessionReader(batch).message_counts == counts_live

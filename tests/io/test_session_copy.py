@@ -2,7 +2,7 @@
 
 The bulk copy must write exactly what the message-by-message copy writes (the re-estimation's
 reference path): the same messages per topic, in the same order, with the same log times,
-publish times and sequence numbers, for CDR sessions and (by falling back) JSON ones.
+publish times and sequence numbers, for ROS 2 sessions and (by falling back) JSON ones.
 """
 
 from collections import defaultdict
@@ -15,44 +15,59 @@ from mcap.reader import make_reader
 from teleop_force.errors import DataError
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.io.mcap_session import SessionReader, SessionWriter, export_session_json
+from teleop_force.io.ros2_columns import EstimateRows, estimate_blocks
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import codec, interfaces, topics
 from teleop_force.service import reestimation
-from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 
 EPOCH_NS = 1_700_000_000_000_000_000
 JS, MJS, SP, CF, ST, EST = (
-    keys.measured_js("slave"), keys.measured_js("master"), keys.setpoint_js("master"),
-    keys.measured_cf("slave"), keys.status("slave"), keys.estimated_cf("slave"),
+    "/slave/measured_js", "/master/measured_js", "/master/setpoint_js", "/slave/true_cf",
+    "/slave/status", "/slave/estimated_cf",
 )  # fmt: skip
 TOPICS = sorted((JS, MJS, SP, CF, ST))
+NAMES = topics.OMNI_MODEL_JOINT_NAMES
 
 
 def _write_source(path: Path, n: int = 1500, *, shuffled_cf: bool = False) -> None:
-    """A CDR session of small chunks, with negative stamps, statuses of varying size."""
+    """A ROS 2 session of small chunks, with statuses of varying size, sequence wrapping."""
     meta = {"primary_device": "slave", "master_device": "master", "source": "live"}
     rng = np.random.default_rng(3)
-    with SessionWriter(path, meta, chunk_size_bytes=4096) as writer:
+    with SessionWriter(path, meta, chunk_size_bytes=4096, profile="ros2") as writer:
+
+        def put(topic, ros_type, payload, seq, stamp, log):
+            writer.write_ros2(topic, ros_type, payload, seq, stamp, log)
+
         for k in range(n):
             log = EPOCH_NS + k * 1_000_000
-            stamp = -1 if k % 97 == 0 else EPOCH_NS + k * 999_000
+            stamp = EPOCH_NS + k * 999_000
+            publish = -1 if k % 97 == 0 else stamp + 7  # no source time: the log time
             q = tuple(rng.normal(size=3).tolist())
             effort = (2e6, 0.0, 0.0) if k % 211 == 5 else tuple(rng.normal(size=3).tolist())
-            writer.write(MJS, m.JointState(k, stamp, q, q, (0.0,) * 3), log)
-            writer.write(SP, m.JointSetpoint(k, stamp, q), log)
-            writer.write(JS, m.JointState(k % 1000, stamp, q, q, effort), log + 1)
+            master = codec.encode_joint_state(m.JointState(0, stamp, q, q, (0.0,) * 3), NAMES)
+            put(MJS, interfaces.JOINT_STATE, master, k + 1, publish, log)
+            setpoint = codec.encode_joint_setpoint(m.JointSetpoint(0, stamp, q), NAMES)
+            put(SP, interfaces.JOINT_STATE, setpoint, k + 1, publish, log)
+            js = codec.encode_joint_state(m.JointState(0, stamp, q, q, effort), NAMES)
+            put(JS, interfaces.JOINT_STATE, js, 2**32 - 700 + k, publish, log + 1)
             cf_log = log + 2 - (1_500_000 if shuffled_cf and k % 10 == 3 else 0)
-            writer.write(CF, m.ContactForce(k, stamp, (1.0, 2.0, float(k))), cf_log)
+            force = m.ContactForce(0, stamp, (1.0, 2.0, float(k)))
+            put(CF, interfaces.WRENCH_STAMPED, codec.encode_contact_force(force, "base"), k + 1,
+                publish, cf_log)  # fmt: skip
             if k % 30 == 0:
-                reason = "x" * (k % 7)
-                state = m.SafetyState.FOLLOWING
-                writer.write(ST, m.Status(k // 30, stamp, state, reason), log + 3)
+                status = m.Status(0, stamp, m.SafetyState.FOLLOWING, "x" * (k % 7))
+                put(ST, interfaces.STATUS, codec.encode_status(status), k // 30 + 1, publish,
+                    log + 3)  # fmt: skip
             if k % 100 == 0:
                 old = m.ForceEstimateMessage(
-                    k, stamp, k, (0.0, 0.0, 0.0), (0.0,) * 3, (True,) * 3, (1.0,) * 3,
+                    0, stamp, k, (0.0, 0.0, 0.0), (0.0,) * 3, (True,) * 3, (1.0,) * 3,
                     (0.0,) * 3, (0.0,) * 3,
                 )  # fmt: skip
-                writer.write(EST, old, log + 4)
+                wrench, diagnostics = codec.encode_estimate(old, NAMES, "base")
+                put(EST, interfaces.WRENCH_STAMPED, wrench, k + 1, publish, log + 4)
+                put("/slave/estimate_diagnostics", interfaces.ESTIMATE_DIAGNOSTICS, diagnostics,
+                    k + 1, publish, log + 4)  # fmt: skip
 
 
 def _records(path: Path) -> dict[str, list[tuple[int, int, int, bytes]]]:
@@ -120,7 +135,10 @@ def test_json_sessions_are_copied_message_by_message(tmp_path) -> None:
     old, new, old_result, new_result = _copy_both(source, tmp_path)
     assert new_result == old_result
     assert _records(new) == _records(old)
-    assert _records(new)[CF] == _records(cdr_source)[CF]
+    # the same bytes and sequence numbers (the JSON layout keeps no source time)
+    dropped_publish = [[(log, seq, data) for log, _, seq, data in _records(path)[CF]]
+                       for path in (new, cdr_source)]  # fmt: skip
+    assert dropped_publish[0] == dropped_publish[1]
 
 
 def test_a_keep_mask_of_another_length_is_refused(tmp_path) -> None:
@@ -148,39 +166,37 @@ def test_opening_a_reader_counts_messages_from_the_indexes(tmp_path) -> None:
     _write_source(source, n=300)
     reader = SessionReader(source)
     iterated: dict[str, int] = defaultdict(int)
-    for topic, _, _ in reader:
-        iterated[topic] += 1
+    for raw in reader.raw_messages():
+        iterated[raw.topic] += 1
     assert reader.message_counts == dict(iterated)
     assert reader.message_counts[JS] == 300
     assert not reader.truncated
 
 
 @pytest.mark.parametrize("n", [3, 9])
-def test_estimate_payloads_are_the_packed_messages(n) -> None:
-    from teleop_force.estimation.batch import BatchEstimates
-
+def test_estimate_blocks_are_the_codecs_messages(n) -> None:
     rng = np.random.default_rng(n)
     k = 40
     force = rng.normal(size=(k, 3))
     force[5] = np.nan  # singular: no force
-    est = BatchEstimates(
-        np.arange(k, dtype=float), force, rng.normal(size=(k, n)), rng.normal(size=(k, n)),
-        rng.normal(size=(k, n)), rng.uniform(size=(k, n)), rng.uniform(size=(k, n)) > 0.5,
-        np.zeros(k, dtype=bool),
+    sources = (np.arange(k) * 7 + 2**32 - 50) % 2**32  # wrapping
+    rows = EstimateRows(
+        EPOCH_NS + np.arange(k, dtype=np.int64) * 999_999_937, sources,
+        force, rng.normal(size=(k, n)), rng.uniform(size=(k, n)), rng.uniform(size=(k, n)) > 0.5,
+        rng.normal(size=(k, n)), rng.normal(size=(k, n)),
     )  # fmt: skip
-    rows = np.array([0, 3, 5, 7, 39])
-    sources = np.array([7, 2**32 - 1, 0, 12, 13], dtype=np.uint32)
-    stamps = np.array([EPOCH_NS + i for i in range(rows.size)], dtype=np.int64)
-    got = reestimation._estimate_payloads(est, rows, sources, stamps)
-    want = []
-    for count, r in enumerate(rows.tolist()):
-        values = np.concatenate(
-            (est.force_tip_in_base_n[r], est.tau_external_nm[r], est.coverage_weight[r],
-             est.tau_motor_filtered_nm[r], est.tau_model_filtered_nm[r])
-        ).tolist()  # fmt: skip
-        mask = sum(1 << j for j in range(n) if est.on_trained_ground[r, j])
-        want.append(
-            m.pack_force_estimate(count, int(stamps[count]), int(sources[count]), n, values, mask)
-        )
-    assert got == want
-    assert m.decode(got[2]).source_seq == 0
+    names = topics.model_joint_names(n)
+    zeros = (0.0,) * n
+    template = m.ForceEstimateMessage(0, 0, 0, (0.0,) * 3, zeros, (False,) * n, zeros, zeros,
+                                      zeros)  # fmt: skip
+    wrenches, reports = estimate_blocks(*codec.encode_estimate(template, names, "base"), rows)
+    for r in range(k):
+        estimate = m.ForceEstimateMessage(
+            0, int(rows.t_ns[r]), int(rows.source_sequence[r]), tuple(force[r]),
+            tuple(rows.tau_ext_nm[r]), tuple(rows.on_trained_ground[r].tolist()),
+            tuple(rows.coverage_weight[r]), tuple(rows.tau_motor_filtered_nm[r]),
+            tuple(rows.tau_model_filtered_nm[r]),
+        )  # fmt: skip
+        wrench, diagnostics = codec.encode_estimate(estimate, names, "base")
+        assert wrenches[r].tobytes() == wrench
+        assert reports[r].tobytes() == diagnostics
