@@ -30,6 +30,19 @@ are 1-based, angles in rad, lengths in m; every key but ``format``, ``name`` and
       { alpha_rad = 0, a_m = 0.2, d_m = 0, inertia_kgm2 = [[1e-3,0,0], [0,1e-3,0], [0,0,1e-3]] },
     ]
 
+    [driver]                      # optional: the driver's JointState conventions
+    name = "my-driver"            # (robots/driver_interface.py, docs/real_robot.md)
+    base_frame = "base"
+    rate_hz = 500.0
+    publishes_velocity = false
+    effort_unit = "mN m"          # or "N m"
+    position_coupling = [[1, 0, 0], [0, 1, 0], [0, 1, 1]]   # default I
+    positions = [{ joint = "waist", sign = -1 }, { joint = "shoulder" }, { joint = "elbow" }]
+    efforts = [{ joint = "waist" }, { joint = "shoulder" }, { joint = "elbow" }]
+
+A driver's table may also stand alone in a file with ``format = "teleop-force-driver"`` and
+``version = 1`` (:func:`load_driver_interface` reads either).
+
 Link masses, centres of mass and inertias (DH rows, or the URDF's) are nominal values only:
 identification finds the base parameters. The keys' types, defaults and sizes are the schema
 of :mod:`teleop_force.robots.file_schema`; what depends on the built model (joint count,
@@ -54,8 +67,16 @@ import pinocchio as pin
 from teleop_force.errors import DataError, ModelError, ModelFileError
 from teleop_force.robots.description import JointSpring, RobotDescription
 from teleop_force.robots.dh import DHLink, DHRow, build_dh_model
+from teleop_force.robots.driver_interface import (
+    DriverFieldError,
+    DriverInterface,
+    EffortEntry,
+    PositionEntry,
+)
 from teleop_force.robots.file_schema import (
     DhSection,
+    DriverFile,
+    DriverSection,
     Matrix3,
     RobotFile,
     Spring,
@@ -190,6 +211,69 @@ def load_robot_description(path: str | os.PathLike[str]) -> RobotDescription:
             joint_names=tuple(names),
         ),
     )
+
+
+def load_driver_interface(path: str | os.PathLike[str]) -> DriverInterface:
+    """Read the ``[driver]`` table of a robot description or a stand-alone driver file.
+
+    Raises:
+        DataError: the file cannot be read or parsed.
+        ModelError: the table is missing or a field is wrong (the message names the file
+            and the field, ``driver.positions[0].sign``).
+
+    """
+    path = Path(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise DataError(f"driver description must be {' or '.join(SUFFIXES)}", path=path)
+    if not path.is_file():
+        raise DataError("no such driver description file", path=path)
+    data = _parse(path)
+    f = _Fields(path)
+    if data.get("format") == "teleop-force-driver":
+        try:
+            section = read_entry(data, DriverFile).driver
+        except ModelFileError as exc:
+            raise f.error(exc.column or "driver", exc.problem) from None
+    else:
+        if data.get("format") != "teleop-force-robot":
+            raise f.error("format", "expected 'teleop-force-driver' or 'teleop-force-robot'")
+        if "driver" not in data:
+            raise f.error("driver", "missing: the robot description has no [driver] table")
+        try:
+            section = read_entry(data["driver"], DriverSection)
+        except ModelFileError as exc:
+            column = f"driver.{exc.column}" if exc.column else "driver"
+            raise f.error(column, exc.problem) from None
+    return driver_interface_from_section(f, section)
+
+
+def driver_interface_from_section(f: _Fields, section: DriverSection) -> DriverInterface:
+    """Build the :class:`DriverInterface` of a read ``[driver]`` table (errors name it)."""
+    try:
+        return DriverInterface(
+            name=section.name,
+            base_frame=section.base_frame,
+            rate_hz=section.rate_hz,
+            publishes_velocity=section.publishes_velocity,
+            positions=tuple(
+                PositionEntry(p.joint, p.sign, p.offset_rad, p.scale) for p in section.positions
+            ),
+            efforts=tuple(EffortEntry(e.joint, e.sign) for e in section.efforts),
+            effort_unit=section.effort_unit,
+            position_coupling=_ragged(f, section.position_coupling, "driver.position_coupling"),
+            effort_coupling=_ragged(f, section.effort_coupling, "driver.effort_coupling"),
+            base_rotation=_ragged(f, section.base_rotation, "driver.base_rotation"),
+        )
+    except DriverFieldError as exc:
+        raise f.error(f"driver.{exc.field}", exc.problem) from None
+
+
+def _ragged(f: _Fields, rows: list[list[float]] | None, field: str) -> np.ndarray | None:
+    if rows is None:
+        return None
+    if len({len(r) for r in rows}) > 1 or not rows:
+        raise f.error(field, f"expected rows of equal length, got {shown(rows)}")
+    return np.array(rows, dtype=float)
 
 
 def _sized(f: _Fields, values: list[Any] | None, field: str, default: np.ndarray) -> np.ndarray:

@@ -53,6 +53,45 @@ class UrdfSection(Struct, forbid_unknown_fields=True, frozen=True):
     locked: dict[str, Any] = {}  # numbers, checked with the joint they lock
 
 
+class DriverPosition(Struct, forbid_unknown_fields=True, frozen=True):
+    """One model joint's position in a ``[driver]`` table (``positions``, model order)."""
+
+    joint: NonEmptyStr
+    sign: Finite = 1.0
+    offset_rad: Finite = 0.0
+    scale: Finite = 1.0
+
+
+class DriverEffort(Struct, forbid_unknown_fields=True, frozen=True):
+    """One model joint's torque in a ``[driver]`` table (``efforts``, model order)."""
+
+    joint: NonEmptyStr
+    sign: Finite = 1.0
+
+
+class DriverSection(Struct, forbid_unknown_fields=True, frozen=True):
+    """The ``[driver]`` table: a driver's JointState conventions (robots/driver_interface.py)."""
+
+    name: NonEmptyStr
+    base_frame: NonEmptyStr
+    rate_hz: Finite
+    publishes_velocity: bool
+    positions: Annotated[list[DriverPosition], Meta(min_length=1)]
+    efforts: Annotated[list[DriverEffort], Meta(min_length=1)]
+    effort_unit: NonEmptyStr = "N m"
+    position_coupling: list[list[Finite]] | None = None
+    effort_coupling: list[list[Finite]] | None = None
+    base_rotation: list[list[Finite]] | None = None
+
+
+class DriverFile(Struct, forbid_unknown_fields=True, frozen=True):
+    """A stand-alone driver file: ``format = "teleop-force-driver"``, version 1, ``[driver]``."""
+
+    format: Literal["teleop-force-driver"]
+    version: Literal[1]
+    driver: DriverSection
+
+
 class RobotFile(Struct, forbid_unknown_fields=True, frozen=True):
     """A whole robot description file (one of ``urdf`` and ``dh``)."""
 
@@ -70,3 +109,4 @@ class RobotFile(Struct, forbid_unknown_fields=True, frozen=True):
     springs: list[Spring] = []
     urdf: UrdfSection | None = None
     dh: DhSection | None = None
+    driver: DriverSection | None = None

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 
 import numpy as np
 
 from teleop_force.errors import ModelError
 from teleop_force.robots.description import RobotDescription
+from teleop_force.robots.driver_interface import DriverInterface
 from teleop_force.robots.kinds import BUILTIN_ROBOTS, RobotKind
 from teleop_force.robots.omni import omni_description
 
@@ -104,3 +106,19 @@ def _builtin_description(kind: RobotKind, n_joints: int | None) -> RobotDescript
             from teleop_force.robots.teststand import teststand_description
 
             return teststand_description()
+
+
+#: Built-in driver interfaces (teleop_force/robots/drivers/), by name.
+BUILTIN_DRIVERS: dict[str, str] = {"sensable-phantom": "sensable_phantom.toml"}
+
+
+def builtin_driver(name: str) -> DriverInterface:
+    """Return a built-in driver interface (``sensable-phantom``: sawSensablePhantom's Omni)."""
+    from teleop_force.robots.file import load_driver_interface
+
+    if name not in BUILTIN_DRIVERS:
+        raise ModelError(f"unknown driver {name!r}; built-in drivers: {', '.join(BUILTIN_DRIVERS)}")
+    with resources.as_file(
+        resources.files("teleop_force.robots") / "drivers" / BUILTIN_DRIVERS[name]
+    ) as path:
+        return load_driver_interface(path)
