@@ -141,6 +141,27 @@ def decode_joint_state(
     return msg, NamedJoints(tuple(d.name), d.header.frame_id)
 
 
+@dataclass(frozen=True, slots=True)
+class RawJointState:
+    """A decoded JointState as it came: any names, arrays of any (possibly zero) length."""
+
+    t_ns: int
+    frame_id: str
+    names: tuple[str, ...]
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    effort: tuple[float, ...]
+
+
+def decode_raw_joint_state(payload: bytes | bytearray | memoryview) -> RawJointState:
+    """Parse a JointState without the project's checks (a driver's, in its own conventions)."""
+    d = _deserialize(payload, i.JOINT_STATE)
+    return RawJointState(
+        _stamp_ns(d.header), d.header.frame_id, tuple(d.name), _floats(d.position),
+        _floats(d.velocity), _floats(d.effort),
+    )  # fmt: skip
+
+
 def encode_joint_setpoint(msg: m.JointSetpoint, names: Sequence[str], frame_id: str = "") -> bytes:
     """Return ``sensor_msgs/msg/JointState`` with ``position`` only (velocity, effort empty)."""
     return encode_joint_state_parts(msg.t_ns, names, frame_id, msg.q_rad, _EMPTY, _EMPTY)

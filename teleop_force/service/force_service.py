@@ -112,6 +112,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
+from teleop_force.robots.driver_interface import DriverInterface
 from teleop_force.ros2 import codec, topics
 from teleop_force.ros2 import graph as ros2_graph
 from teleop_force.ros2.attachment import Attachment
@@ -188,6 +189,8 @@ class ServiceConfig:
         residual_watch: Run the residual watch and publish its diagnostics.
         adapt_gate: Which samples online adaptation learns from (free motion only).
         domain_id: The ROS domain of its topics (``None``: ``ROS_DOMAIN_ID``, default 0).
+        driver: The device's JointStates are a driver's, in its conventions, converted with
+            this interface on reading (``None``: they are in the model's coordinates).
 
     """
 
@@ -203,6 +206,7 @@ class ServiceConfig:
     residual_watch: bool = True
     adapt_gate: AdaptationGate = field(default_factory=AdaptationGate)
     domain_id: int | None = None
+    driver: DriverInterface | None = None
 
     def __post_init__(self) -> None:
         """Validate the device ids and the recording settings."""
@@ -328,7 +332,7 @@ class ForceService:
         session = self.session
         edge = self._ros2 = Ros2Edge(
             session, device, self.n_joints, self._estimate_guarded, self._count_malformed,
-            self.config.domain_id,
+            self.config.domain_id, self.config.driver,
         )  # fmt: skip
         watch = self.residual_watch
         if watch is not None:
@@ -857,6 +861,11 @@ def build_parser(
         help="do not run the residual watch (/<device>/service/diagnostics)",
     )  # fmt: skip
     parser.add_argument(
+        "--driver", default=None, metavar="NAME|FILE",
+        help="the device's JointStates are this driver's, converted on reading: a built-in "
+        "(sensable-phantom: sawSensablePhantom's Omni / Touch) or a driver description file",
+    )  # fmt: skip
+    parser.add_argument(
         "--ros-domain-id", type=int, default=None, metavar="D",
         help="ROS 2 domain of the device's topics (default: $ROS_DOMAIN_ID, else 0)",
     )  # fmt: skip
@@ -923,6 +932,7 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
             residual_watch=not args.no_residual_watch,
             adapt_gate=AdaptationGate(args.adapt_free_force_n, args.adapt_guard_s),
             domain_id=args.ros_domain_id,
+            driver=None if args.driver is None else load_driver(args.driver),
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:
@@ -960,6 +970,16 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
         f"{stats['malformed']['dropped']} malformed, {stats['estimates']['published']} estimates",
     )
     return 0
+
+
+def load_driver(name_or_path: str) -> DriverInterface:
+    """Return a built-in driver interface by name, else the one a description file holds."""
+    from teleop_force.robots.file import load_driver_interface
+    from teleop_force.robots.registry import BUILTIN_DRIVERS, builtin_driver
+
+    if name_or_path in BUILTIN_DRIVERS:
+        return builtin_driver(name_or_path)
+    return load_driver_interface(name_or_path)
 
 
 def _endpoints(args: argparse.Namespace) -> str:

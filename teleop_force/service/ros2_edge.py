@@ -12,7 +12,10 @@ A received JointState must be in the model's coordinates: its names are empty or
 model's (:func:`teleop_force.ros2.topics.model_joint_names`); the Omni driver's ``waist,
 shoulder, elbow`` (a relative elbow) or any other names are counted as malformed under the
 topic's name and dropped, as are payloads that do not parse and samples without a valid
-attachment (:attr:`Ros2Edge.malformed_attachments`).
+attachment (:attr:`Ros2Edge.malformed_attachments`). With a ``driver`` interface
+(:class:`~teleop_force.robots.driver_interface.DriverInterface`) it is the driver's JointState
+instead: the joints named there are read and converted to the model's q and torques, once, on
+reading (a velocity is not needed: the estimator differentiates the angles itself).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ from typing import Final
 
 import zenoh
 
-from teleop_force.errors import MessageError
+from teleop_force.errors import ConfigurationError, DataError, MessageError
+from teleop_force.robots.driver_interface import DriverInterface
 from teleop_force.ros2 import codec, streams, topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, Subscription
@@ -47,11 +51,13 @@ class Ros2Edge:
         on_joint_state: JointStateCallback,
         count_malformed: Callable[[str, Exception], None],
         domain_id: int | None = None,
+        driver: DriverInterface | None = None,
     ) -> None:
         """Declare the node and its publishers; :meth:`subscribe` starts the input.
 
         ``count_malformed(topic, error)`` gets every refused JointState; ``domain_id``: the
-        ROS domain (``None``: ``ROS_DOMAIN_ID``, default 0).
+        ROS domain (``None``: ``ROS_DOMAIN_ID``, default 0); ``driver``: the JointStates are
+        the driver's, converted with it.
         """
         self.device = topics.validate_device(device)
         self.n_joints = n_joints
@@ -59,6 +65,12 @@ class Ros2Edge:
         self.joint_state_topic = topics.topic_name(device, topics.MEASURED_JS)
         self._on_joint_state = on_joint_state
         self._count_malformed = count_malformed
+        self.driver = driver
+        if driver is not None and driver.n_joints != n_joints:
+            raise ConfigurationError(
+                f"driver {driver.name} maps {driver.n_joints} joints, the model has {n_joints}"
+            )
+        self._zeros = (0.0,) * n_joints
         codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
         self.node = Node(session, NODE_NAME, domain_id=domain_id)
         self.estimates = self.node.publisher(
@@ -98,13 +110,25 @@ class Ros2Edge:
 
     def _on_sample(self, payload: bytes, attachment: Attachment) -> None:
         arrival_ns = time.time_ns()
+        seq = attachment.sequence_number & 0xFFFF_FFFF
         try:
-            msg, named = codec.decode_joint_state(payload, attachment.sequence_number & 0xFFFF_FFFF)
-            streams.check_joint_names(named.names, self.names)
-        except MessageError as exc:
+            if self.driver is None:
+                msg, named = codec.decode_joint_state(payload, seq)
+                streams.check_joint_names(named.names, self.names)
+            else:
+                msg = self._from_driver(payload, seq)
+        except (MessageError, DataError) as exc:
             self._count_malformed(self.joint_state_topic, exc)
             return
         self._on_joint_state(msg, attachment, arrival_ns)
+
+    def _from_driver(self, payload: bytes, seq: int) -> m.JointState:
+        raw = codec.decode_raw_joint_state(payload)
+        assert self.driver is not None
+        q, tau = self.driver.to_model(raw.names, raw.position, raw.effort)
+        if tau is None:
+            raise MessageError(f"driver {self.driver.name}: a JointState without efforts")
+        return m.JointState(seq, raw.t_ns, tuple(q.tolist()), self._zeros, tuple(tau.tolist()))
 
     def publish_estimate(
         self,

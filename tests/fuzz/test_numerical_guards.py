@@ -31,11 +31,11 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.robots.description import Robot
 from teleop_force.robots.omni import omni_description
+from teleop_force.ros2 import codec, topics
 from teleop_force.service.adaptation import AdaptationGate, AdaptationWorker
 from teleop_force.service.force_service import MAX_ABS_JOINT_VALUE, ForceService, ServiceConfig
-from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher
+from tests.ros2_traffic import Collector, JointStatePublisher
 
 INPUTS = ((0,), (1, 2), (1, 2))
 
@@ -139,32 +139,28 @@ def _live_service(
 ) -> Iterator[tuple[ForceService, list[m.ForceEstimateMessage], Any]]:
     """A service on a loopback peer session, the estimates it publishes, a joint-state publisher."""
     service = ForceService(session, model, ServiceConfig(device=device)).start()
-    got: list[m.ForceEstimateMessage] = []
-    sub = session.declare_subscriber(
-        keys.estimated_cf(device),
-        lambda s: got.append(m.ForceEstimateMessage.decode(s.payload.to_bytes())),
-    )
-    pub = declare_data_publisher(session, keys.measured_js(device))
+    collector = Collector(session, device, topics.ESTIMATED_CF)
+    pub = JointStatePublisher(session, device)
     try:
-        yield service, got, pub
+        yield service, collector.messages, pub
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        collector.close()
+        pub.close()
         service.close()
 
 
-def non_finite_joint_state(seq: int, t_ns: int, value: float) -> bytes:
-    """A JointState whose second angle is ``value`` (the constructor would refuse it)."""
-    raw = bytearray(m.JointState(seq, t_ns, (0.1, 0.7, 0.3), (0.0,) * 3, (0.0,) * 3).encode())
-    raw[17 + 8 : 17 + 16] = np.float64(value).tobytes()
-    return bytes(raw)
+def non_finite_joint_state(t_ns: int, value: float) -> bytes:
+    """A CDR JointState whose second angle is ``value`` (the message value would refuse it)."""
+    names = topics.OMNI_MODEL_JOINT_NAMES
+    return codec.encode_joint_state_parts(t_ns, names, "", (0.1, value, 0.3), (0.0,) * 3,
+                                          (0.0,) * 3)  # fmt: skip
 
 
 @pytest.mark.zenoh
 def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running(
     zenoh_session, model
 ):
-    device = "guard-test"
+    device = "guard_test"
     t0 = 1_700_000_000_000_000_000
     sent_bad = 0
     with _live_service(zenoh_session, model, device) as (service, got, pub):
@@ -172,10 +168,10 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
             t_ns = t0 + k * 1_000_000
             if k % 50 == 25:
                 for value in (math.nan, math.inf, -math.inf, 1e300, -2e6):
-                    pub.put(non_finite_joint_state(k, t_ns, value))
+                    pub.send_raw(non_finite_joint_state(t_ns, value), 10_000 + sent_bad)
                     sent_bad += 1
             q = (0.1, 0.7 + 1e-4 * k, 0.3)
-            pub.put(m.JointState(k, t_ns, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())
+            pub.send(m.JointState(k, t_ns, q, (0.0,) * 3, (0.0, 0.1, 0.05)))
         deadline = time.monotonic() + 20
         while len(got) < 300 and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -192,11 +188,11 @@ def test_service_drops_non_finite_and_implausible_joint_states_and_keeps_running
         service.estimator.step = failing_once
         for k in range(300, 400):
             q = (0.1, 0.7 + 1e-4 * k, 0.3)
-            pub.put(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())
+            pub.send(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)))
         while len(got) < 399 and time.monotonic() < deadline:
             time.sleep(0.01)
         stats = service.stats()
-    assert stats["malformed"]["by_key"] == {keys.measured_js(device): sent_bad}
+    assert stats["malformed"]["by_key"] == {topics.topic_name(device, topics.MEASURED_JS): sent_bad}
     assert stats["joint_states"]["received"] == 400 and stats["joint_states"]["lost"] == 0
     assert stats["estimates"]["errors"] == 1 and stats["estimates"]["published"] == 399
     assert len(got) == 399 and all(np.all(np.isfinite(e.tau_ext_nm)) for e in got)
@@ -209,12 +205,12 @@ def test_a_spike_up_to_the_plausibility_bound_leaves_the_filters_finite(zenoh_se
     Beyond the bound (1e300 overflows the filter states for good, found while fuzzing) the
     joint state is dropped as malformed, see the test above.
     """
-    device = "spike-test"
+    device = "spike_test"
     t0 = 1_700_000_000_000_000_000
     with _live_service(zenoh_session, model, device) as (service, got, pub):
         for k in range(300):
             q = (0.1, MAX_ABS_JOINT_VALUE if k == 100 else 0.7, 0.3)
-            pub.put(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)).encode())
+            pub.send(m.JointState(k, t0 + k * 1_000_000, q, (0.0,) * 3, (0.0, 0.1, 0.05)))
         deadline = time.monotonic() + 20
         while len(got) < 300 and time.monotonic() < deadline:
             time.sleep(0.01)

@@ -123,3 +123,48 @@ def test_residual_watch_reports_are_published_as_service_diagnostics(zenoh_pair)
     finally:
         client.close()
         edge.close()
+
+
+def test_a_drivers_joint_states_are_converted_on_reading_and_estimated_on(zenoh_pair, model):
+    """sawSensablePhantom's measured_js (its names, relative elbow, mN m, no velocity, 500 Hz):
+    the estimates equal the estimator's on the same samples in the model's coordinates."""
+    from teleop_force.estimation.estimator import ForceEstimator
+    from teleop_force.robots.registry import builtin_driver
+    from tests.robots.test_driver_interface import saw_measured_js
+    from tests.ros2_traffic import Collector, put
+
+    device = "omni_right"  # the driver's namespace
+    config = ServiceConfig(
+        device=device, residual_watch=False, driver=builtin_driver("sensable-phantom")
+    )
+    service = ForceService(zenoh_pair.listener, model, config).start()
+    client = Node(zenoh_pair.connector, "sensable_phantom")
+    estimates = Collector(zenoh_pair.connector, device, topics.ESTIMATED_CF)
+    n = 100
+    t = np.arange(n) * 2e-3
+    q = np.column_stack([0.2 * np.sin(2 * t), 0.8 + 0.3 * np.sin(3 * t), 0.3 + 0.1 * t])
+    tau_nm = np.column_stack([0.02 + 0 * t, 0.15 + 0.01 * np.cos(t), 0.05 + 0 * t])
+    try:
+        driver = client.publisher(topics.topic_name(device, topics.MEASURED_JS),
+                                  interfaces.JOINT_STATE)  # fmt: skip
+        assert pubsub.wait_for_subscribers(driver.zenoh_publisher, TIMEOUT_S)
+        for k in range(n):
+            names, position, effort = saw_measured_js(
+                q[k],
+                np.zeros(3),
+                tau_nm[k] * 1e3,
+                np.zeros(3),  # OpenHaptics: mN m
+            )
+            ros = sensor_msgs.JointState()
+            ros.header.stamp.sec, ros.header.stamp.nanosec = divmod(T0_NS + k * 2_000_000, 10**9)
+            ros.name, ros.position, ros.effort = list(names), list(position), list(effort)
+            put(driver, serialization.serialize_message(ros), k + 1)  # no velocity, as it sends
+        wait_until(lambda: len(estimates) == n, "the estimates")
+    finally:
+        estimates.close()
+        client.close()
+        service.close()
+    offline = ForceEstimator(model)
+    for k, estimate in enumerate(estimates.messages):
+        expected = offline.update(k * 2e-3, q[k], tau_nm[k])
+        np.testing.assert_allclose(estimate.f_n, expected.force_tip_in_base_n, rtol=0, atol=1e-9)
