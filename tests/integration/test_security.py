@@ -184,10 +184,10 @@ def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
 
 @pytest.mark.slow  # the whole demo (4 processes) starts in ~20-60 s on a shared machine
 def test_demo_listens_on_loopback_only(tmp_path):
-    port = free_tcp_port()
+    port, zenoh_port = free_tcp_port(), free_tcp_port()
     demo = subprocess.Popen(
         python_module("teleop_force.cli.main", "demo", "--port", str(port), "--record-dir",
-                      str(tmp_path)),
+                      str(tmp_path), "--zenoh-port", str(zenoh_port)),
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )  # fmt: skip
     try:
@@ -205,8 +205,9 @@ def test_demo_listens_on_loopback_only(tmp_path):
         found = listening_sockets(pids)
     finally:
         stop(demo, timeout_s=30.0)
-    assert len(pids) >= 5, pids  # supervisor, service, slave, master, dashboard
+    assert len(pids) >= 6, pids  # supervisor, router, service, slave, master, dashboard
     assert any(address.endswith(f":{port}") for _, _, address in found), found
+    assert any(address.endswith(f":{zenoh_port}") for _, _, address in found), found  # router
     exposed = [s for s in found if not is_loopback(s[2])]
     assert not exposed, f"listening beyond loopback: {exposed}"
     print(f"\ndemo listeners ({len(found)}): {sorted({a for _, _, a in found})}")
