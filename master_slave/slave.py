@@ -27,7 +27,8 @@ liveliness token
 more than ``--stale-ms`` (50) ago, the slave holds in the same tick: the setpoint is frozen at
 the current measured q and extra joint damping is added; Status HOLDING gives the reason. It
 follows again (slew-limited, no jump) once ``resume_count`` fresh setpoints have arrived with
-the token present. Malformed setpoints (or of other joint names) are counted and dropped.
+the token present. Malformed setpoints (or of other joint names) are counted and dropped, as
+are samples without rmw_zenoh's attachment (``setpoints.without_attachment``).
 
 Run: ``python -m master_slave.slave --device slave --master master --connect tcp/...``.
 """
@@ -70,6 +71,7 @@ from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.ros2 import codec
 from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Subscription
 from teleop_force.ros2.topics import MEASURED_JS
 from teleop_force.simulation import (
     EFFECT_NAMES,
@@ -355,6 +357,8 @@ class SlaveProcess:
         self._status_seq = 0
         self._last_status_s = -math.inf
         self._ros2: Ros2Outputs | None = None
+        #: The setpoint subscription (it counts samples dropped for a missing attachment).
+        self._setpoints: Subscription | None = None
         #: The plant effect switched on mid-session, once it is (``effect``, ``at_s``).
         self.switched_effect: dict[str, Any] | None = None
 
@@ -369,7 +373,10 @@ class SlaveProcess:
             "state": self.safety.state.name.lower(),
             "reason": self.safety.reason,
             "loop": self.loop.stats(),
-            "setpoints": self.inbox.stats(),
+            "setpoints": {
+                **self.inbox.stats(),
+                "without_attachment": 0 if self._setpoints is None else self._setpoints.malformed,
+            },
             "published_joint_states": self.published,
             "joint_state_put_ms": self.put_time.summary_ms(),
             "master_alive": self.presence.alive,
@@ -392,7 +399,7 @@ class SlaveProcess:
                 session, ROLE, config.device,
                 (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
             )  # fmt: skip
-            ros2.node.subscription(
+            self._setpoints = ros2.node.subscription(
                 ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),
                 ros2_topics.SETPOINT_JS.ros_type,
                 self.inbox.on_sample,

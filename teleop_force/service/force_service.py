@@ -38,7 +38,8 @@ joint state's sequence number and its stamp the time it was published; the slave
 latency is measured from the joint state's attachment source time.
 
 Statistics (``service/stats``): joint states received / lost (sequence gaps) / restarts /
-duplicates, malformed messages dropped (by key), estimates published, singular, errors,
+duplicates, malformed messages dropped (by key; ``without_attachment``: joint states without
+rmw_zenoh's attachment), estimates published, singular, errors,
 latency p50/p99/max [ms] (joint-state stamp -> estimate publish), processing time, rates, the
 fraction of estimates on trained ground, the model running (``model.path``), adaptation
 state, recording (``recording``: the open one or ``null``; ``last_recording``), controls,
@@ -745,7 +746,12 @@ class ForceService:
                     if self.config.zenoh_floor
                     else None
                 ),
-                "malformed": self.malformed.to_dict(),
+                "malformed": {
+                    **self.malformed.to_dict(),
+                    "without_attachment": (
+                        0 if self._ros2 is None else self._ros2.malformed_attachments
+                    ),
+                },
                 "latency_ms": estimates.latency.summary_ms(),
                 "processing_ms": estimates.processing.summary_ms(),
                 "on_ground_fraction": estimates.on_ground_fraction(),

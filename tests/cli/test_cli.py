@@ -146,6 +146,23 @@ def test_residual_choices_are_the_libraries_own() -> None:
         assert ResidualOptions(friction=kind).friction is FrictionKind(kind)
 
 
+def test_demo_zenoh_flags_are_a_port_only(capsys) -> None:
+    """ROS 2 is the demo's only live format and it always has a router: no --ros2, no --router."""
+    from teleop_force.cli.main import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.choices and "demo" in a.choices)
+    flags = {o for a in sub.choices["demo"]._actions for o in a.option_strings}
+    assert "--zenoh-port" in flags and not flags & {"--ros2", "--router"}
+    for gone in ("--ros2", "--router"):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["demo", gone])
+        assert exit_info.value.code == 2
+        assert f"unrecognized arguments: {gone}" in capsys.readouterr().err
+    args = parser.parse_args(["demo", "--zenoh-port", "7450"])
+    assert args.zenoh_port == 7450
+
+
 def test_building_the_parser_does_not_import_the_residual_loop() -> None:
     """The choices come from the light options module, not the loop (SciPy fits, numba)."""
     code = (

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -14,6 +15,14 @@ import sys
 import time
 
 STARTUP_TIMEOUT_S = 90.0  # the machine is shared: imports can take long under load
+#: A line of ``teleop-force demo``: ``started <name> (pid <pid>)`` (the router's ends
+#: `` on <endpoint>``).
+_STARTED = re.compile(r"started (\w+) \(pid (\d+)\)")
+
+
+def started_pids(text: str) -> dict[str, int]:
+    """The children a demo's output says it started: ``{name: pid}``."""
+    return {name: int(pid) for name, pid in _STARTED.findall(text)}
 
 
 def python_module(module: str, *args: str) -> list[str]:

@@ -29,13 +29,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from ros2_traffic import NAMES, put
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
 
 from teleop_force.errors import MessageError, TransportError
 from teleop_force.io.mcap_session import SessionReader
+from teleop_force.ros2 import codec, interfaces, streams, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.pubsub import query_json
 from teleop_force.transport.session import (
     ZenohOptions,
     free_tcp_port,
@@ -45,21 +49,21 @@ from teleop_force.transport.session import (
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
-MASTER, SLAVE = "ft-master", "ft-slave"
+MASTER, SLAVE = "ft_master", "ft_slave"
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "test-output" / "faults.json"
 RESULTS: dict = {}
-_RECORDED = (keys.MEASURED_JS, keys.SETPOINT_JS, keys.MEASURED_CF, keys.STATUS)
-_KIND_CLASS = {
-    keys.MEASURED_JS: m.JointState,
-    keys.SETPOINT_JS: m.JointSetpoint,
-    keys.MEASURED_CF: m.ContactForce,
-    keys.STATUS: m.Status,
-}
+#: What a recorder keeps (besides the estimates): (device, topic), counted by topic name.
+_RECORDED = (
+    (SLAVE, topics.MEASURED_JS), (MASTER, topics.MEASURED_JS), (MASTER, topics.SETPOINT_JS),
+    (SLAVE, topics.TRUE_CF), (SLAVE, topics.STATUS),
+)  # fmt: skip
+ESTIMATED = topics.topic_name(SLAVE, topics.ESTIMATED_CF)
+DIAGNOSTICS = topics.topic_name(SLAVE, topics.ESTIMATE_DIAGNOSTICS)
 
 
 class Observer:
-    """The test's Zenoh session: statuses, joint states, estimates, counts, liveliness."""
+    """The test's ROS 2 node: statuses, joint states, estimates, counts; and liveliness."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.lock = threading.Lock()
@@ -67,52 +71,46 @@ class Observer:
         self.joint_states: list[tuple[float, m.JointState]] = []
         self.estimates: list[tuple[float, m.ForceEstimateMessage]] = []
         self.counts: Counter[str] = Counter()
+        self.malformed: Counter[str] = Counter()  # the test's own malformed payloads
         self.tokens: set[str] = set()
+        self.node = Node(session, "test_observer")
+        for device, topic in _RECORDED:
+            # 3 joints and the model's names: what a receiver keeps, as the recorder does
+            n_joints = 3 if topic.ros_type == interfaces.JOINT_STATE else None
+            streams.subscribe(
+                self.node, device, topic, self._receiver(device, topic), self.on_malformed,
+                n_joints=n_joints,
+            )  # fmt: skip
+        streams.subscribe(
+            self.node, SLAVE, topics.ESTIMATED_CF, self.on_estimate, self.on_malformed
+        )
         self.subs = [
-            session.declare_subscriber(keys.status(SLAVE), self.on_status),
-            session.declare_subscriber(keys.measured_js(SLAVE), self.on_js),
-            session.declare_subscriber(keys.estimated_cf(SLAVE), self.on_estimate),
             session.liveliness().declare_subscriber(keys.alive_any(), self.on_token, history=True),
         ]
-        self.subs += [
-            session.declare_subscriber(keys.any_device(kind), self.on_recorded)
-            for kind in _RECORDED
-        ]
 
-    def _decode(self, sample: zenoh.Sample, cls):
-        with contextlib.suppress(MessageError):  # the test's own malformed payloads
-            return cls.decode(sample.payload.to_bytes())
-        return None
+    def _receiver(self, device: str, topic: topics.Topic):
+        name = topics.topic_name(device, topic)
 
-    def on_status(self, sample):
-        status = self._decode(sample, m.Status)
-        if status is not None:
+        def on_message(message, attachment: Attachment) -> None:
+            now = time.perf_counter()
             with self.lock:
-                self.states.append((time.perf_counter(), status))
+                self.counts[name] += 1
+                if device == SLAVE and topic == topics.STATUS:
+                    self.states.append((now, message))
+                elif device == SLAVE and topic == topics.MEASURED_JS:
+                    self.joint_states.append((now, message))
 
-    def on_js(self, sample):
-        js = self._decode(sample, m.JointState)
-        if js is not None and js.n_joints == 3:  # not the test's own wrong-count payloads
-            with self.lock:
-                self.joint_states.append((time.perf_counter(), js))
+        return on_message
 
-    def on_estimate(self, sample):
-        estimate = self._decode(sample, m.ForceEstimateMessage)
-        if estimate is not None:
-            with self.lock:
-                self.estimates.append((time.perf_counter(), estimate))
-                self.counts[str(sample.key_expr)] += 1
-
-    def on_recorded(self, sample):
-        """Count what a recorder keeps: the key's own message type (3 joints for the slave)."""
-        key = str(sample.key_expr)
-        message = self._decode(sample, _KIND_CLASS[keys.parse(key).kind])
-        if message is None:
-            return
-        if key == keys.measured_js(SLAVE) and message.n_joints != 3:
-            return
+    def on_malformed(self, topic: str, error: MessageError) -> None:
         with self.lock:
-            self.counts[key] += 1
+            self.malformed[topic] += 1
+
+    def on_estimate(self, estimate: m.ForceEstimateMessage, attachment: Attachment) -> None:
+        with self.lock:
+            self.estimates.append((time.perf_counter(), estimate))
+            self.counts[ESTIMATED] += 1  # its two messages, as recorded
+            self.counts[DIAGNOSTICS] += 1
 
     def on_token(self, sample):
         key = str(sample.key_expr)
@@ -138,6 +136,8 @@ class Observer:
         for sub in self.subs:
             with contextlib.suppress(zenoh.ZError):
                 sub.undeclare()
+        with contextlib.suppress(zenoh.ZError, TransportError):
+            self.node.close()
 
 
 class System:
@@ -334,15 +334,27 @@ def _open_client(endpoint: str, timeout_s: float) -> zenoh.Session:
 # --------------------------------------------------------------------------- peer system
 
 
-def invalid_payloads(seed: int, n: int, cls) -> list[bytes]:
-    """Mutated messages that ``cls.decode`` rejects, or with a joint count other than 3."""
+def _refused(payload: bytes, decode) -> bool:
+    """Whether a receiver drops ``payload``: no CDR it reads, not 3 joints, or other names."""
+    try:
+        msg, named = decode(payload, 1)
+    except MessageError:
+        return True
+    return msg.n_joints != 3 or named.names not in ((), NAMES)
+
+
+def invalid_payloads(seed: int, n: int, decode) -> list[bytes]:
+    """Mutated ROS 2 messages that ``decode`` (a JointState decoder of the codec) refuses."""
     rng = random.Random(seed)
     valid = [
-        m.JointSetpoint(1, 1, (0.1, 0.8, 0.3)).encode(),
-        m.JointState(1, 1, (0.1, 0.8, 0.3), (0.0,) * 3, (0.0,) * 3).encode(),
-        m.JointState(1, 1, (0.1,), (0.0,), (0.0,)).encode(),
-        m.Status(1, 1, m.SafetyState.FOLLOWING, "x").encode(),
-    ]
+        codec.encode_joint_setpoint(m.JointSetpoint(1, 1, (0.1, 0.8, 0.3)), NAMES),
+        codec.encode_joint_state(m.JointState(1, 1, (0.1, 0.8, 0.3), (0.0,) * 3, (0.0,) * 3),
+                                 NAMES),
+        codec.encode_joint_state(m.JointState(1, 1, (0.1,), (0.0,), (0.0,)), ()),
+        codec.encode_joint_state(m.JointState(1, 1, (0.1, 0.8, 0.3), (0.0,) * 3, (0.0,) * 3),
+                                 topics.DRIVER_JOINT_NAMES),
+        codec.encode_status(m.Status(1, 1, m.SafetyState.FOLLOWING, "x")),
+    ]  # fmt: skip
     out: list[bytes] = []
     while len(out) < n:
         buf = bytearray(rng.choice(valid))
@@ -355,31 +367,33 @@ def invalid_payloads(seed: int, n: int, cls) -> list[bytes]:
                 del buf[i:]
             else:
                 buf[i:i] = rng.randbytes(rng.randint(1, 8))
-        try:
-            if cls.decode(bytes(buf)).n_joints != 3:
-                out.append(bytes(buf))
-        except MessageError:
+        if _refused(bytes(buf), decode):
             out.append(bytes(buf))
     return out
 
 
 def test_malformed_payloads_are_counted_and_dropped_by_live_processes(system):
-    setpoints = invalid_payloads(1, 200, m.JointSetpoint)
-    joint_states = invalid_payloads(2, 200, m.JointState)
+    setpoints = invalid_payloads(1, 200, codec.decode_joint_setpoint)
+    joint_states = invalid_payloads(2, 200, codec.decode_joint_state)
+    js_topic = topics.topic_name(SLAVE, topics.MEASURED_JS)
     slave_before = system.slave_stats()["setpoints"]["malformed"]
-    service_before = system.service_stats()["malformed"]["by_key"].get(keys.measured_js(SLAVE), 0)
-    # Reliable publishers (congestion control BLOCK): a plain put may be dropped under load.
-    publishers = [declare_data_publisher(system.session, k)
-                  for k in (keys.setpoint_js(MASTER), keys.measured_js(SLAVE))]  # fmt: skip
+    service_before = system.service_stats()["malformed"]["by_key"].get(js_topic, 0)
+    # A ROS 2 node of the test's own: reliable publishers (congestion control BLOCK), the
+    # attachment's sequence number chosen here.
+    node = Node(system.session, "test_injector")
     try:
-        for payload in setpoints:
-            publishers[0].put(payload)
-        for payload in joint_states:
-            publishers[1].put(payload)
+        setpoint_pub = node.publisher(
+            topics.topic_name(MASTER, topics.SETPOINT_JS), topics.SETPOINT_JS.ros_type
+        )
+        js_pub = node.publisher(js_topic, topics.MEASURED_JS.ros_type)
+        for seq, payload in enumerate(setpoints, 1):
+            put(setpoint_pub, payload, seq)
+        for seq, payload in enumerate(joint_states, 1):
+            put(js_pub, payload, seq)
 
         def service_count() -> int:
             by_key = system.service_stats()["malformed"]["by_key"]
-            return by_key.get(keys.measured_js(SLAVE), 0) - service_before
+            return by_key.get(js_topic, 0) - service_before
 
         wait_for(
             lambda: system.slave_stats()["setpoints"]["malformed"] - slave_before == len(setpoints),
@@ -387,8 +401,7 @@ def test_malformed_payloads_are_counted_and_dropped_by_live_processes(system):
         )  # fmt: skip
         wait_for(lambda: service_count() >= len(joint_states), 20.0, "the service", interval_s=0.1)
     finally:
-        for pub in publishers:
-            pub.undeclare()
+        node.close()
     assert service_count() == len(joint_states)
     assert system.observer.state() == "FOLLOWING"  # nobody crashed, the slave still follows
     assert all(p.poll() is None for p in system.processes.values())
@@ -470,9 +483,8 @@ def test_master_killed_slave_holds_and_resumes_when_it_is_restarted(system):
 
 
 def _recorded_counts(counts: Counter[str]) -> int:
-    return sum(
-        v for k, v in counts.items() if keys.parse(k).kind in (*_RECORDED, keys.ESTIMATED_CF)
-    )
+    """What a recorder of the recorded topics and the estimates got (by ROS topic name)."""
+    return sum(counts.values())  # RECORDING
 
 
 def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
@@ -490,9 +502,9 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
     service.wait(10)
     killed = time.perf_counter()
     record = system.records[-1]
-    reader = SessionReader(record)  # opens: a killed writer's file needs no footer
-    in_file = sum(reader.message_counts.values())
-    iterated = sum(1 for _ in reader.messages())  # and every counted message decodes
+    reader = SessionReader(record)  # opens: a killed writer's file needs no footer  # RECORDING
+    in_file = sum(reader.message_counts.values())  # RECORDING
+    iterated = sum(1 for _ in reader.messages())  # every counted message decodes  # RECORDING
     received = _recorded_counts(seen)
     # The slave goes on without the service: no hold, no gap in its joint states.
     time.sleep(1.0)
@@ -509,8 +521,8 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
         "written_reported_before_kill": recording["messages"],
         "received_by_separate_subscriber": received,
         "readable_in_file": in_file,
-        "fraction_kept_of_written": round(in_file / recording["messages"], 5),
-        "fraction_kept_of_received": round(in_file / received, 5),
+        "fraction_kept_of_written": round(in_file / recording["messages"], 5),  # RECORDING
+        "fraction_kept_of_received": round(in_file / received, 5),  # RECORDING
         "recording_length_s": round(killed - service_started, 1),
         "file_opened": True,
         "messages_iterated": iterated,
@@ -521,19 +533,19 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
         "load_average": os.getloadavg(),
     }
     RESULTS["slave_joint_states_observer_gaps"] = int(np.sum(np.diff(seqs) != 1))
-    assert reader.truncated  # killed: no footer, and still readable
-    assert iterated == in_file
+    assert reader.truncated  # killed: no footer, and still readable  # RECORDING
+    assert iterated == in_file  # RECORDING
     # Everything the writer reported durable (in complete chunks) before the kill is there,
     # and at least 99 % of what it reported written (durable or in the open chunk).
-    assert in_file >= recording["durable"]
-    assert in_file >= 0.99 * recording["messages"]
+    assert in_file >= recording["durable"]  # RECORDING
+    assert in_file >= 0.99 * recording["messages"]  # RECORDING
     # What a separate subscriber got but the file lacks is what was still queued or in the
     # open chunk at the kill: bounded in time (flush interval + recorder backlog), not in
     # fraction; it is reported, and must stay under one second of the session's traffic.
     rate = received / (killed - service_started)
-    assert received - in_file <= rate * 1.0, (received, in_file, rate)
+    assert received - in_file <= rate * 1.0, (received, in_file, rate)  # RECORDING
     assert js_during > js_before + 500  # the slave kept streaming while the service was gone
-    assert new[0][1].seq == 0  # a fresh service, counting from 0
+    assert new[0][1].seq == 1  # a fresh service: its publisher's attachment counts from 1
     assert system.observer.state() == "FOLLOWING"
     assert RESULTS["slave_joint_states_observer_gaps"] == 0  # the observer lost nothing
     stats = system.service_stats()

@@ -4,7 +4,8 @@
 ``--plant-effect``: 10 % of the joint's RMS torque switched on at 60 s; the watch must report
 a dependence within 30 s of it. Without the effect it must stay quiet for 10 minutes. Three
 seeds each (the operator's script and the slave's actuator noise), one effect per variable.
-The test subscribes to ``omni/slave/service/diagnostics`` like any client. About 50 minutes
+The test subscribes to ``/slave/service/diagnostics`` (teleop_force_msgs/ServiceDiagnostics) as a
+ROS 2 node, like any client. About 50 minutes
 on a quiet machine.
 """
 
@@ -13,10 +14,12 @@ from __future__ import annotations
 import threading
 
 import pytest
+from ros2_traffic import Collector
 
 from teleop_force.cli.demo import DemoConfig, run_demo
+from teleop_force.errors import TransportError
 from teleop_force.process.lifetime import StopSignal
-from teleop_force.transport import keys
+from teleop_force.ros2 import topics
 from teleop_force.transport import messages as m
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -48,31 +51,31 @@ def _run(seed: int, duration_s: float, effect: str | None) -> list[m.ServiceDiag
     stop = StopSignal()
     demo = threading.Thread(target=lambda: result.update(run_demo(config, stop)), daemon=True)
     demo.start()
-    got: list[m.ServiceDiagnostics] = []
     client = None
+    collector = None
     try:
         while client is None and demo.is_alive():
-            try:  # the supervisor listens once it runs
+            try:  # the demo's router listens once it runs
                 client = open_session(
                     ZenohOptions(
                         mode="peer", connect=(listen_endpoint(port),), multicast_scouting=False
                     )
                 )
-            except Exception:
+            except TransportError:
                 stop.wait(0.5)
         assert client is not None, "the demo did not come up"
-        client.declare_subscriber(
-            keys.service_diagnostics("slave"),
-            lambda s: got.append(m.ServiceDiagnostics.decode(s.payload.to_bytes())),
-        )
+        collector = Collector(client, "slave", topics.SERVICE_DIAGNOSTICS)
         demo.join(duration_s + 300.0)
     finally:
         stop.set()
         demo.join(60.0)
+        if collector is not None:
+            collector.close()
         if client is not None:
             client.close()
     assert result.get("ok"), result.get("failure")
-    return got
+    assert not collector.malformed, collector.malformed[:3]
+    return list(collector.messages)
 
 
 @pytest.mark.parametrize("seed", SEEDS)

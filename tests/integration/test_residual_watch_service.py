@@ -1,7 +1,8 @@
 """The service publishes its residual watch's diagnostics over Zenoh, off the 1 kHz path.
 
 Two loopback peers (tests/conftest.py): the service on one, a client on the other that
-streams joint states, subscribes to ``omni/<device>/service/diagnostics`` and queries the
+streams ROS 2 JointStates on ``/<device>/measured_js``, subscribes to
+``/<device>/service/diagnostics`` (teleop_force_msgs/ServiceDiagnostics) and queries the
 statistics, as the dashboard does.
 """
 
@@ -11,17 +12,19 @@ import time
 
 import numpy as np
 import pytest
+from ros2_traffic import Collector, JointStatePublisher
 
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import topics
 from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.service.residual_watch import Finding
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.pubsub import query_json
 
 pytestmark = pytest.mark.zenoh
-DEVICE = "watch-test"
+DEVICE = "watch_test"
 T0_NS = 1_700_000_000_000_000_000
 
 
@@ -38,21 +41,18 @@ def test_the_service_publishes_diagnostics_and_a_finding_with_its_command(zenoh_
         zenoh_pair.listener, model, ServiceConfig(device=DEVICE), model_path=DEFAULT_MODEL_PATH
     ).start()
     client = zenoh_pair.connector
-    got: list[m.ServiceDiagnostics] = []
-    sub = client.declare_subscriber(
-        keys.service_diagnostics(DEVICE),
-        lambda s: got.append(m.ServiceDiagnostics.decode(s.payload.to_bytes())),
-    )
-    pub = declare_data_publisher(client, keys.measured_js(DEVICE))
+    diagnostics = Collector(client, DEVICE, topics.SERVICE_DIAGNOSTICS)
+    got: list[m.ServiceDiagnostics] = diagnostics.messages
+    estimates = Collector(client, DEVICE, topics.ESTIMATED_CF, node_name="test_estimates")
+    driver = JointStatePublisher(client, DEVICE)
     try:
-        estimates: list[bytes] = []
-        est_sub = client.declare_subscriber(
-            keys.estimated_cf(DEVICE), lambda s: estimates.append(s.payload.to_bytes())
-        )
+        _wait_until(lambda: driver.publisher.zenoh_publisher.matching_status.matching)
         t = np.arange(2000) * 1e-3
         for k in range(t.size):
-            q = [0.1 * np.sin(t[k]), 0.9 + 0.2 * np.sin(2 * t[k]), 0.4]
-            pub.put(m.pack_joint_state(k, T0_NS + k * 1_000_000, q, [0.0] * 3, [0.0, 0.1, 0.0]))
+            q = (0.1 * np.sin(t[k]), 0.9 + 0.2 * np.sin(2 * t[k]), 0.4)
+            js = m.JointState(k, T0_NS + k * 1_000_000, tuple(map(float, q)), (0.0,) * 3,
+                              (0.0, 0.1, 0.0))  # fmt: skip
+            driver.send(js)
         _wait_until(lambda: len(estimates) == t.size)
         _wait_until(lambda: any(d.stream_s > 1.5 for d in got))
         first = got[-1]
@@ -64,11 +64,12 @@ def test_the_service_publishes_diagnostics_and_a_finding_with_its_command(zenoh_
         count = len(got)
         _wait_until(lambda: len(got) > count + 1)
         last = got[-1]
-        est_sub.undeclare()
     finally:
-        sub.undeclare()
-        pub.undeclare()
+        for closing in (estimates, diagnostics, driver):
+            closing.close()
         service.close()
+    assert not diagnostics.malformed and not estimates.malformed
+    assert [e.source_seq for e in estimates.messages] == list(range(t.size))
     assert first.device == DEVICE and first.state == "baseline"
     assert first.finding is None and first.command == ""
     assert stats["residual_watch"]["samples"] == t.size

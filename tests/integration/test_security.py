@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from ros2_traffic import Collector, JointStatePublisher
 from teleop_helpers import (
     STARTUP_TIMEOUT_S,
     python_module,
@@ -33,10 +34,11 @@ from teleop_helpers import (
 from teleop_force.errors import TransportError
 from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
+from teleop_force.ros2 import topics
 from teleop_force.service.force_service import ForceService, ServiceConfig
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
-from teleop_force.transport.pubsub import declare_data_publisher, query_json
+from teleop_force.transport.pubsub import query_json
 from teleop_force.transport.session import (
     ZenohOptions,
     free_tcp_port,
@@ -182,10 +184,10 @@ def test_service_and_dashboard_listen_on_loopback_only(tmp_path):
 
 @pytest.mark.slow  # the whole demo (4 processes) starts in ~20-60 s on a shared machine
 def test_demo_listens_on_loopback_only(tmp_path):
-    port = free_tcp_port()
+    port, zenoh_port = free_tcp_port(), free_tcp_port()
     demo = subprocess.Popen(
         python_module("teleop_force.cli.main", "demo", "--port", str(port), "--record-dir",
-                      str(tmp_path)),
+                      str(tmp_path), "--zenoh-port", str(zenoh_port)),
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )  # fmt: skip
     try:
@@ -203,8 +205,9 @@ def test_demo_listens_on_loopback_only(tmp_path):
         found = listening_sockets(pids)
     finally:
         stop(demo, timeout_s=30.0)
-    assert len(pids) >= 5, pids  # supervisor, service, slave, master, dashboard
+    assert len(pids) >= 6, pids  # supervisor, router, service, slave, master, dashboard
     assert any(address.endswith(f":{port}") for _, _, address in found), found
+    assert any(address.endswith(f":{zenoh_port}") for _, _, address in found), found  # router
     exposed = [s for s in found if not is_loopback(s[2])]
     assert not exposed, f"listening beyond loopback: {exposed}"
     print(f"\ndemo listeners ({len(found)}): {sorted({a for _, _, a in found})}")
@@ -294,7 +297,7 @@ def test_service_over_tls_and_plain_or_untrusted_clients_are_refused(tmp_path, c
     port = free_tcp_port()
     endpoint = f"tls/127.0.0.1:{port}"
     server = _listener(endpoint, tls_config(tmp_path / "server.json5", certificates, mtls=mtls))
-    device = "tls-slave"
+    device = "tls_slave"
     service = ForceService(
         server, DynamicModel.load(DEFAULT_MODEL_PATH), ServiceConfig(device=device)
     ).start()
@@ -302,21 +305,22 @@ def test_service_over_tls_and_plain_or_untrusted_clients_are_refused(tmp_path, c
     try:
         # With mTLS both sides set enable_mtls (the client then presents its certificate).
         client = _client(endpoint, tls_config(tmp_path / "client.json5", certificates, mtls=mtls))
-        got: list[m.ForceEstimateMessage] = []
-        sub = client.declare_subscriber(
-            keys.estimated_cf(device), lambda s: got.append(m.decode(s.payload.to_bytes()))
-        )
-        pub = declare_data_publisher(client, keys.measured_js(device))
-        wait_for(lambda: pub.matching_status.matching, 10.0, "the service over TLS")
-        time.sleep(0.1)
-        for k in range(100):
-            js = m.JointState(k, 1_700_000_000_000_000_000 + k * 1_000_000, (0.1, 0.8, 0.3),
-                              (0.0,) * 3, (0.0, 0.1, 0.05))  # fmt: skip
-            pub.put(js.encode())
-        wait_for(lambda: len(got) == 100, 10.0, "100 estimates over TLS")
-        stats = query_json(client, keys.service_stats(device), 5.0)
-        sub.undeclare()
-        pub.undeclare()
+        estimates = Collector(client, device, topics.ESTIMATED_CF)
+        driver = JointStatePublisher(client, device)
+        try:
+            matched = driver.publisher.zenoh_publisher
+            wait_for(lambda: matched.matching_status.matching, 10.0, "the service over TLS")
+            time.sleep(0.1)
+            for k in range(100):
+                js = m.JointState(k, 1_700_000_000_000_000_000 + k * 1_000_000, (0.1, 0.8, 0.3),
+                                  (0.0,) * 3, (0.0, 0.1, 0.05))  # fmt: skip
+                driver.send(js)
+            wait_for(lambda: len(estimates) == 100, 10.0, "100 estimates over TLS")
+            stats = query_json(client, keys.service_stats(device), 5.0)
+        finally:
+            estimates.close()
+            driver.close()
+        got = estimates.messages
         assert stats["joint_states"]["received"] == 100 and stats["joint_states"]["lost"] == 0
         assert [e.source_seq for e in got] == list(range(100))
         # A plain TCP client gets nowhere: the port speaks TLS only.
@@ -376,7 +380,7 @@ def test_access_control_makes_the_service_read_only_for_remote_peers(tmp_path):
             mode="peer", listen=(endpoint,), config_path=acl_config(tmp_path / "acl.json5")
         )
     )
-    device = "acl-slave"
+    device = "acl_slave"
     models = tmp_path / "models"
     models.mkdir()
     service = ForceService(

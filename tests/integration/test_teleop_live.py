@@ -8,9 +8,7 @@ session is then replayed through a fresh service, which must reproduce the estim
 
 from __future__ import annotations
 
-import contextlib
 import math
-import queue
 import signal
 import subprocess
 import sys
@@ -19,40 +17,49 @@ import time
 import numpy as np
 import pytest
 import zenoh
+from ros2_traffic import NAMES, put
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
 
 from teleop_force.cli import main as cli
+from teleop_force.errors import MessageError
 from teleop_force.io.mcap_session import SessionReader
+from teleop_force.ros2 import codec, graph, streams, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import query_json
 
 pytestmark = pytest.mark.zenoh
-MASTER, SLAVE = "it-master", "it-slave"
+MASTER, SLAVE = "it_master", "it_slave"
 RUN_S = 1.5
 
 
 class Observer:
-    """The test's own Zenoh peer: status, slave joint states, liveliness."""
+    """The test's own Zenoh peer, a ROS 2 node: status, slave joint states, liveliness."""
 
     def __init__(self, session: zenoh.Session) -> None:
-        self.statuses: queue.Queue[tuple[float, m.Status]] = queue.Queue()
         self.states: list[tuple[float, m.Status]] = []
         self.joint_states: list[m.JointState] = []
+        self.malformed: list[tuple[str, MessageError]] = []  # the test's own bad payloads
         self.tokens: set[str] = set()
+        self.node = Node(session, "test_observer")
+        streams.subscribe(self.node, SLAVE, topics.STATUS, self.on_status, self.on_malformed)
+        streams.subscribe(
+            self.node, SLAVE, topics.MEASURED_JS, self.on_js, self.on_malformed, n_joints=3
+        )
         self.subs = [
-            session.declare_subscriber(keys.status(SLAVE), self.on_status),
-            session.declare_subscriber(keys.measured_js(SLAVE), self.on_js),
             session.liveliness().declare_subscriber(keys.alive_any(), self.on_token, history=True),
         ]
 
-    def on_status(self, sample):
-        status = m.Status.decode(sample.payload.to_bytes())
+    def on_status(self, status: m.Status, attachment: Attachment) -> None:
         self.states.append((time.perf_counter(), status))
 
-    def on_js(self, sample):
-        with contextlib.suppress(m.MessageError):  # the test's own malformed payloads
-            self.joint_states.append(m.JointState.decode(sample.payload.to_bytes()))
+    def on_js(self, js: m.JointState, attachment: Attachment) -> None:
+        self.joint_states.append(js)
+
+    def on_malformed(self, topic: str, error: MessageError) -> None:
+        self.malformed.append((topic, error))
 
     def on_token(self, sample):
         key = str(sample.key_expr)
@@ -67,6 +74,35 @@ class Observer:
     def close(self):
         for sub in self.subs:
             sub.undeclare()
+        self.node.close()
+
+
+def bad_payloads() -> tuple[list[bytes], list[bytes]]:
+    """Malformed setpoints (for the slave) and joint states (for the service), as ROS 2 CDR.
+
+    Each is refused for one reason: CDR that does not parse (empty, too short, not CDR, cut
+    short), the Omni driver's joint names (a relative elbow), other names, or the wrong joint
+    count.
+    """
+    now = time.time_ns()
+    setpoint = m.JointSetpoint(0, now, (0.0, 0.8, 0.2))
+    js = m.JointState(0, now, (0.0, 0.8, 0.2), (0.0,) * 3, (0.0,) * 3)
+    two = m.JointState(0, now, (0.0, 0.8), (0.0,) * 2, (0.0,) * 2)
+    good_js = codec.encode_joint_state(js, NAMES)
+    bad_setpoints = [
+        b"",
+        b"\x00" * 3,
+        codec.encode_joint_setpoint(setpoint, topics.DRIVER_JOINT_NAMES),
+        codec.encode_joint_setpoint(m.JointSetpoint(0, now, (0.0, 0.8)), ("model_q1", "model_q2")),
+    ]
+    bad_js = [
+        b"not a message",
+        good_js[:-1],
+        codec.encode_joint_state(js, topics.DRIVER_JOINT_NAMES),
+        codec.encode_joint_state(js, ("a", "b", "c")),
+        codec.encode_joint_state(two, ()),  # no names, but 2 joints: the model has 3
+    ]
+    return bad_setpoints, bad_js
 
 
 @pytest.fixture(scope="module")
@@ -100,24 +136,38 @@ def live(tmp_path_factory, zenoh_rendezvous):
             lambda: keys.alive(MASTER, "master") in observer.tokens, STARTUP_TIMEOUT_S, "master"
         )
         wait_for(lambda: observer.state() == "FOLLOWING", 30.0, "the slave to follow")
-        # Malformed and wrong-version payloads for the slave (setpoints) and the service.
-        good_setpoint = m.JointSetpoint(0, time.time_ns(), (0.0, 0.8, 0.2)).encode()
-        wrong_version = bytearray(good_setpoint)
-        wrong_version[2] = 2
-        good_js = m.JointState(0, time.time_ns(), (0.0, 0.8, 0.2), (0.0,) * 3, (0.0,) * 3).encode()
-        wrong_js = bytearray(good_js)
-        wrong_js[2] = 7
-        bad_setpoints = [b"", b"\x00" * 3, bytes(wrong_version), good_js]  # JointState != setpoint
-        bad_js = [b"not a message", bytes(wrong_js), good_setpoint, good_js[:-1]]
-        for payload in bad_setpoints:
-            session.put(keys.setpoint_js(MASTER), payload)
-        for payload in bad_js:
-            session.put(keys.measured_js(SLAVE), payload)
+        # Malformed payloads for the slave (setpoints) and the service (joint states), from a
+        # ROS 2 node of the test's own, then one sample of each topic without attachment.
+        bad_setpoints, bad_js = bad_payloads()
+        injector = Node(session, "test_injector")
+        domain = graph.domain_id_from_env()
+        try:
+            setpoints = injector.publisher(
+                topics.topic_name(MASTER, topics.SETPOINT_JS), topics.SETPOINT_JS.ros_type
+            )
+            joint_states = injector.publisher(
+                topics.topic_name(SLAVE, topics.MEASURED_JS), topics.MEASURED_JS.ros_type
+            )
+            for seq, payload in enumerate(bad_setpoints, 1):
+                put(setpoints, payload, seq)
+            for seq, payload in enumerate(bad_js, 1):
+                put(joint_states, payload, seq)
+            good_setpoint = codec.encode_joint_setpoint(
+                m.JointSetpoint(0, time.time_ns(), (0.0, 0.8, 0.2)), NAMES
+            )
+            good_js = codec.encode_joint_state(
+                m.JointState(0, time.time_ns(), (0.0, 0.8, 0.2), (0.0,) * 3, (0.0,) * 3), NAMES
+            )
+            session.put(topics.data_key(MASTER, topics.SETPOINT_JS, domain), good_setpoint)
+            session.put(topics.data_key(SLAVE, topics.MEASURED_JS, domain), good_js)
+        finally:
+            injector.close()
         time.sleep(RUN_S)
         result["service_stats"] = query_json(session, keys.service_stats(SLAVE), 5.0)
         result["slave_stats"] = query_json(session, keys.process_stats(SLAVE, "slave"), 5.0)
         result["master_stats"] = query_json(session, keys.process_stats(MASTER, "master"), 5.0)
         result["expected_malformed"] = (len(bad_setpoints), len(bad_js))
+        result["observer_malformed"] = list(observer.malformed)
         # SIGKILL the master while the slave follows: the slave must hold.
         wait_for(lambda: observer.state() == "FOLLOWING", 10.0, "the slave to follow again")
         n_states = len(observer.states)
@@ -167,14 +217,22 @@ def test_processes_exchange_over_zenoh_without_loss(live):
 
 def test_malformed_payloads_are_counted_and_dropped(live):
     n_setpoints, n_js = live["expected_malformed"]
-    assert live["slave_stats"]["setpoints"]["malformed"] == n_setpoints
-    # The service records the setpoints too, so it drops the bad ones there as well.
-    assert live["service_stats"]["malformed"]["by_key"] == {
-        keys.measured_js(SLAVE): n_js,
-        keys.setpoint_js(MASTER): n_setpoints,
-    }
+    setpoints = live["slave_stats"]["setpoints"]
+    assert setpoints["malformed"] == n_setpoints
+    assert setpoints["without_attachment"] == 1
+    malformed = live["service_stats"]["malformed"]
+    assert malformed["by_key"][topics.topic_name(SLAVE, topics.MEASURED_JS)] == n_js
+    assert malformed["without_attachment"] == 1
+    # The test's own subscriber (model names, 3 joints) refused the bad joint states too.
+    refused = [topic for topic, _ in live["observer_malformed"]]
+    assert refused == [topics.topic_name(SLAVE, topics.MEASURED_JS)] * n_js
     assert live["exit_codes"]["slave"] == 0  # nobody crashed
     assert live["exit_codes"]["service"] == 0
+    # The service records the setpoints too, so it drops the bad ones there as well.
+    assert malformed["by_key"] == {  # RECORDING
+        topics.topic_name(SLAVE, topics.MEASURED_JS): n_js,  # RECORDING
+        topics.topic_name(MASTER, topics.SETPOINT_JS): n_setpoints,  # RECORDING
+    }  # RECORDING
 
 
 def test_slave_holds_within_50_ms_when_the_master_is_killed(live):
@@ -213,7 +271,7 @@ def test_replay_reproduces_the_live_estimates_exactly(live):
     finally:
         for signum, handler in handlers.items():
             signal.signal(signum, handler)
-    assert code == 0
+    assert code == 0  # RECORDING (the live recording, replayed)
     live_estimates = estimates(live["record"])
     replay_estimates = estimates(replayed)
     assert len(live_estimates) > 500
@@ -231,7 +289,8 @@ def test_replay_reproduces_the_live_estimates_exactly(live):
 def estimates(path) -> dict[int, m.ForceEstimateMessage]:
     reader = SessionReader(path)
     device = reader.metadata["primary_device"]
-    return {e.source_seq: e for _, _, e in reader.messages([keys.estimated_cf(device)])}
+    estimated = topics.topic_name(device, topics.ESTIMATED_CF)  # RECORDING
+    return {e.source_seq: e for _, _, e in reader.messages([estimated])}  # RECORDING
 
 
 if __name__ == "__main__":

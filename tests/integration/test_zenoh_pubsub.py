@@ -8,8 +8,10 @@ import time
 
 import pytest
 import zenoh
+from ros2_traffic import Collector, JointStatePublisher
 
 from teleop_force.errors import ConfigurationError, TransportError
+from teleop_force.ros2 import topics
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
 from teleop_force.transport.session import (
@@ -35,39 +37,39 @@ def wait_for(predicate, timeout_s=TIMEOUT_S, what="condition"):
 
 @pytest.mark.zenoh
 def test_pub_sub_joint_states_with_congestion_control_block(zenoh_pair):
+    """ROS 2 JointStates (CDR + rmw_zenoh's attachment) from a reliable BLOCK publisher."""
     a, b = zenoh_pair.listener, zenoh_pair.connector
-    key = keys.measured_js("dev1")
-    received: queue.Queue[bytes] = queue.Queue()
-    sub = b.declare_subscriber(key, lambda sample: received.put(sample.payload.to_bytes()))
-    pub = a.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    received = Collector(b, "dev1", topics.MEASURED_JS, n_joints=3)
+    driver = JointStatePublisher(a, "dev1")  # declare_data_publisher: BLOCK, reliable
+    probe = m.JointState(0, time.time_ns(), (0.1, 0.2, 0.3), (0.0,) * 3, (0.0,) * 3)
     try:
-        wait_for(lambda: pub.matching_status, what="the subscriber to be matched")
+        publisher = driver.publisher.zenoh_publisher
+        wait_for(lambda: publisher.matching_status.matching, what="the subscriber to be matched")
         # Zenoh 1.10 may still drop what is put in the first milliseconds after the match:
-        # probe until one message made the round trip, then nothing may be lost.
+        # probe (seq 0) until one message made the round trip, then nothing may be lost.
         deadline = time.monotonic() + TIMEOUT_S
-        while True:
-            pub.put(m.Status(0, time.time_ns(), m.SafetyState.STARTING, "probe").encode())
-            try:
-                assert isinstance(m.decode(received.get(timeout=0.02)), m.Status)
-                break
-            except queue.Empty:
-                assert time.monotonic() < deadline, "no probe got through"
+        while not received.messages:
+            driver.send(probe)
+            time.sleep(0.02)
+            assert time.monotonic() < deadline, "no probe got through"
         count = 500
         t0 = time.time_ns()
-        for i in range(count):
+        for i in range(1, count + 1):
             js = m.JointState(i, time.time_ns(), (0.1, 0.2, 0.3), (0.0,) * 3, (0.01, 0.0, -0.01))
-            pub.put(js.encode())
-        got: list[m.JointState] = []
-        while len(got) < count:
-            message = m.decode(received.get(timeout=TIMEOUT_S))
-            if not isinstance(message, m.Status):  # a late probe
-                got.append(message)
+            driver.send(js)
+        wait_for(lambda: sum(g.seq != 0 for g in received.messages) == count)
+        time.sleep(0.1)  # nothing more (no duplicate) arrives
     finally:
-        pub.undeclare()
-        sub.undeclare()
-    assert [g.seq for g in got] == list(range(count))  # BLOCK + reliable: nothing lost
-    assert all(isinstance(g, m.JointState) and g.t_ns >= t0 for g in got)
+        driver.close()
+        received.close()
+    got = [g for g in received.messages if g.seq != 0]  # not a late probe
+    attachments = [x for x in received.attachments if x.sequence_number != 0]
+    assert [g.seq for g in got] == list(range(1, count + 1))  # BLOCK + reliable: nothing lost
+    assert all(g.t_ns >= t0 and g.q_rad == (0.1, 0.2, 0.3) for g in got)
     assert all(m.sequence_gap(x.seq, y.seq) == 0 for x, y in itertools.pairwise(got))
+    assert {x.gid for x in attachments} == {driver.publisher.gid}
+    assert all(x.source_timestamp_ns >= t0 for x in attachments)
+    assert not received.malformed
 
 
 @pytest.mark.zenoh

@@ -19,15 +19,15 @@ from teleop_force.service.counters import (
 def test_malformed_keys_beyond_the_cap_are_counted_together():
     counter = MalformedCounter()
     for k in range(10 * MAX_COUNTED_KEYS):
-        counter.count(f"omni/device-{k}/setpoint_js", ValueError("bad"))
-    counter.count("omni/device-0/setpoint_js", ValueError("again"))  # a key already counted
+        counter.count(f"/device_{k}/setpoint_js", ValueError("bad"))
+    counter.count("/device_0/setpoint_js", ValueError("again"))  # a key already counted
     table = counter.to_dict()["by_key"]
     assert len(table) == MAX_COUNTED_KEYS + 1
     assert table[OTHER_KEYS] == 9 * MAX_COUNTED_KEYS
-    assert table["omni/device-0/setpoint_js"] == 2
+    assert table["/device_0/setpoint_js"] == 2
     assert counter.dropped == counter.to_dict()["dropped"] == 10 * MAX_COUNTED_KEYS + 1
-    assert counter.last == "omni/device-0/setpoint_js: again"
-    counter.count("omni/new/measured_js", MemoryError("x"))
+    assert counter.last == "/device_0/setpoint_js: again"
+    counter.count("/new/measured_js", MemoryError("x"))
     assert counter.last == f"{OTHER_KEYS}: x"
 
 

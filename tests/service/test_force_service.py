@@ -204,7 +204,7 @@ def test_stats_keep_their_keys(session, model):
         "overflow_dropped", "rate_hz", "mean_rate_hz",
     ]  # fmt: skip
     assert list(stats["estimates"]) == ["published", "singular", "errors", "last_error"]
-    assert list(stats["malformed"]) == ["dropped", "by_key", "last"]
+    assert list(stats["malformed"]) == ["dropped", "by_key", "last", "without_attachment"]
     assert list(stats["adaptation"]) == [
         "enabled", "available", "note", "samples", "skipped_contact", "pending", "dropped",
         "batches", "publications", "errors", "last_error", "batch_ms", "force_threshold_n",

@@ -1,8 +1,9 @@
 """The live residual watch on simulated streams: quiet on clean sessions, fires on a change.
 
 The streams are made as the live system makes them (``master_slave.watched_streams``): the
-simulated Omni under the PID along the palpation script, the service's estimator, the wire
-payloads, the watch evaluated every second of stream time as the service's thread does.
+simulated Omni under the PID along the palpation script, the service's estimator, the
+fixed-layout records the service appends to the watch's ring, the watch evaluated every second
+of stream time as the service's thread does; its reports go out as ROS 2 ServiceDiagnostics.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import pytest
 from master_slave.slave import EffectSwitch, calibrated_effect
 from master_slave.watched_streams import T0_NS, watched_session
 from teleop_force.errors import ConfigurationError, MessageError
+from teleop_force.ros2 import codec
 from teleop_force.service.residual_watch import (
     PayloadRing,
     ResidualWatch,
@@ -44,7 +46,7 @@ def test_ring_keeps_the_newest_and_refuses_what_was_overwritten() -> None:
         PayloadRing(1000)
 
 
-def test_decode_samples_reads_the_wire_layouts() -> None:
+def test_decode_samples_reads_the_ring_record_layouts() -> None:
     js = [m.pack_joint_state(5 + k, T0_NS + k * 10**6, [0.1 * k, 0.2, 0.3], [0.0] * 3,
                              [1.0, 2.0, 3.0]) for k in range(4)]  # fmt: skip
     values = [7.0, 8.0, 9.0, 0.01, 0.02, 0.03, 1.0, 1.0, 1.0, 0.5, 0.6, 0.7, 0.4, 0.4, 0.4]
@@ -251,7 +253,11 @@ def test_the_thread_publishes_about_once_per_period() -> None:
         time.sleep(0.02)
     watch.stop()
     assert len(got) >= 3 and watch.errors == 0, watch.last_error
-    assert m.ServiceDiagnostics.decode(got[-1]).device == "slave"
+    report = m.ServiceDiagnostics.decode(got[-1])
+    assert report.device == "slave"
+    # what the service's ROS 2 node publishes of it (seq: the attachment's, not in the CDR)
+    payload = codec.encode_service_diagnostics(report)
+    assert codec.decode_service_diagnostics(payload, report.seq) == report
 
 
 def test_the_planted_effect_is_10_percent_of_the_joints_rms_torque_on_its_history() -> None:
