@@ -72,8 +72,9 @@ class Collector:
         self._lock = threading.Lock()
         self.node = Node(session, node_name)
         streams.subscribe(
-            self.node, device, topic, self._on_message, self._on_malformed, n_joints=n_joints
-        )
+            self.node, device, topic, self._on_message, self._on_malformed, n_joints=n_joints,
+            max_unpaired=1 << 16,  # a test may collect thousands while the machine is loaded
+        )  # fmt: skip
 
     def _on_message(self, message: Any, attachment: Attachment) -> None:
         with self._lock:

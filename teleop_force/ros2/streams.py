@@ -164,18 +164,20 @@ def subscribe(
     *,
     n_joints: int | None = None,
     direct: bool = False,
+    max_unpaired: int = MAX_UNPAIRED,
 ) -> list[Subscription]:
     """Subscribe to ``topic`` of ``device``; see the module docstring.
 
     ``topic`` is one of :data:`teleop_force.ros2.topics.ALL_TOPICS`; for
     :data:`~teleop_force.ros2.topics.ESTIMATED_CF` the estimate's two topics are subscribed
-    to (two subscriptions returned). ``n_joints``: the joint count required (and the model's
-    names for JointStates); ``None`` accepts any.
+    to (two subscriptions returned; the halves arrive on different threads and may drift
+    apart by up to ``max_unpaired`` before one is dropped). ``n_joints``: the joint count
+    required (and the model's names for JointStates); ``None`` accepts any.
     """
     if topic == topics.ESTIMATE_DIAGNOSTICS:
         raise MessageError("subscribe to ESTIMATED_CF: it brings the diagnostics with it")
     if topic == topics.ESTIMATED_CF:
-        joiner = EstimateJoiner(on_message, n_joints)
+        joiner = EstimateJoiner(on_message, n_joints, max_unpaired=max_unpaired)
         halves = (
             (topics.ESTIMATED_CF, joiner.on_wrench),
             (topics.ESTIMATE_DIAGNOSTICS, joiner.on_diagnostics),
