@@ -44,6 +44,9 @@ from web.stats import StreamSnapshot, StreamStats
 NODE_NAME: Final = "teleop_force_dashboard"
 #: The Omni's joint count; messages with another count are counted as malformed.
 N_JOINTS: Final = 3
+#: Estimate halves (WrenchStamped, EstimateDiagnostics) one may wait for the other: they come
+#: on two threads, which a loaded machine can hold apart for seconds at 1 kHz.
+MAX_UNPAIRED_HALVES: Final = 8192
 #: Rows kept per 1 kHz stream (a bit more than 16 s at 1 kHz).
 DEFAULT_CAPACITY: Final = 16384
 
@@ -205,7 +208,7 @@ class Subscriptions:
                 # Not ``direct``: the decode (rosbags) runs on a Python thread, off Zenoh's.
                 self._by_stream[stream] = streams.subscribe(
                     node, owner, topic, handler, _malformed_counter(telemetry, stream),
-                    n_joints=N_JOINTS,
+                    n_joints=N_JOINTS, max_unpaired=MAX_UNPAIRED_HALVES,
                 )  # fmt: skip
         except BaseException:
             self.close()
