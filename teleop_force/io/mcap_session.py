@@ -960,6 +960,7 @@ class _EstimateJoin:
         self.path, self.topic = path, topic
         self.wrenches: dict[int, tuple[int, Any]] = {}  # stamp -> (MCAP sequence, Wrench)
         self.diagnostics: dict[int, Any] = {}  # stamp -> EstimateDiagnostics
+        self.malformed = 0
 
     def add(self, kind: str, record: Message) -> msg.ForceEstimateMessage | None:
         """Add one half; return the estimate once both halves of its stamp are in."""
@@ -981,12 +982,13 @@ class _EstimateJoin:
                     return None
                 seq, wrench = half
             return codec.estimate_message(seq, wrench, diagnostics)
-        except MessageError as exc:
-            raise DataError(
-                f"bad estimate at log time {record.log_time} ns: {exc}",
-                path=self.path,
-                column=self.topic,
-            ) from None
+        except MessageError:
+            self.malformed += 1  # recorded as received; skipped (SessionReader.messages)
+            return None
+
+
+#: What :meth:`SessionReader._decode_ros2` returns for a message that does not decode.
+_MALFORMED: Any = object()
 
 
 def _bounded_put(pending: dict[int, Any], stamp: int, value: Any) -> None:
@@ -1017,6 +1019,8 @@ class SessionReader:
         self.metadata: dict[str, str] = {}
         #: Whether the file lacks its footer (the writer did not close it).
         self.truncated = True
+        #: Messages of ROS 2 channels that did not decode in the last :meth:`messages`, by topic.
+        self.malformed: dict[str, int] = {}
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
         self._chunks: list[_ChunkRef] = []
@@ -1222,10 +1226,13 @@ class SessionReader:
         are joined (:func:`~teleop_force.ros2.codec.estimate_message`) into one
         ForceEstimateMessage on the ``estimated_cf`` topic, yielded with the later half's
         log time; the diagnostics are not yielded on their own, and a half whose other half
-        never comes is dropped. Other ROS 2 types are yielded as bytes.
+        never comes is dropped. Other ROS 2 types are yielded as bytes. A ROS 2 session holds
+        the messages as they were received: one that does not decode is skipped and counted in
+        :attr:`malformed` (by topic).
         """
         wanted = None if topics is None else set(topics)
         joins: dict[str, _EstimateJoin] = {}
+        self.malformed = {}
         for channel, record in self._records_in_time_order():
             ros2 = self._is_ros2(channel)
             if ros2:
@@ -1237,14 +1244,21 @@ class SessionReader:
                     join = joins.get(stream.device)
                     if join is None:
                         join = joins[stream.device] = _EstimateJoin(self.path, target)
+                    before = join.malformed
                     joined = join.add(stream.kind, record)
+                    if join.malformed != before:
+                        self.malformed[channel.topic] = self.malformed.get(channel.topic, 0) + 1
                     if joined is not None:
                         yield target, record.log_time, joined
                     continue
             if wanted is not None and channel.topic not in wanted:
                 continue
             if ros2:
-                yield channel.topic, record.log_time, self._decode_ros2(channel, record)
+                decoded = self._decode_ros2(channel, record)
+                if decoded is _MALFORMED:
+                    self.malformed[channel.topic] = self.malformed.get(channel.topic, 0) + 1
+                    continue
+                yield channel.topic, record.log_time, decoded
             else:
                 yield channel.topic, record.log_time, self._decode(channel, record)
 
@@ -1283,12 +1297,8 @@ class SessionReader:
                 return codec.decode_status(data, seq)
             if schema.name == interfaces.SERVICE_DIAGNOSTICS:
                 return codec.decode_service_diagnostics(data, seq)
-        except MessageError as exc:
-            raise DataError(
-                f"bad {schema.name} at log time {record.log_time} ns: {exc}",
-                path=self.path,
-                column=channel.topic,
-            ) from None
+        except MessageError:
+            return _MALFORMED
         return data
 
     def _records_in_time_order(self) -> Iterator[tuple[Channel, Message]]:

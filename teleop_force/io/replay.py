@@ -207,8 +207,8 @@ def replay_session(
         for topic, log_ns, sequence, payload in encoder.messages(list(channels)):
             if stop.is_set():
                 break
-            if shift_ns is None:
-                shift_ns = time.time_ns() - _stamp_ns(payload)
+            if shift_ns is None and (stamp_ns := _stamp_ns(payload)) is not None:
+                shift_ns = time.time_ns() - stamp_ns
             if first_log_ns is None:
                 first_log_ns = log_ns
                 started_s = time.perf_counter()
@@ -216,7 +216,7 @@ def replay_session(
             if scale:
                 _sleep_until(started_s + (log_ns - first_log_ns) * scale)
             if shift_ns:
-                payload = _restamped(payload, _stamp_ns(payload) + shift_ns)
+                payload = _restamped(payload, shift_ns)
             publishers[topic].publish(payload, sequence_number=sequence)
             published[channels[topic]] += 1
         duration = time.perf_counter() - started_s
@@ -301,17 +301,23 @@ class _Encoder:
                 yield topic, log_ns, message.seq, encoded[1]
 
 
-def _stamp_ns(payload: bytes) -> int:
-    """Return the header stamp of a CDR payload [ns]."""
+def _stamp_ns(payload: bytes) -> int | None:
+    """Return the header stamp of a little-endian CDR payload [ns]; None if it has none."""
+    if len(payload) < _STAMP_OFFSET + _STAMP.size or payload[:2] != b"\x00\x01":
+        return None  # recorded as received: a malformed or big-endian message
     sec, nanosec = _STAMP.unpack_from(payload, _STAMP_OFFSET)
     return int(sec) * _NS_PER_S + int(nanosec)
 
 
-def _restamped(payload: bytes, t_ns: int) -> bytes:
-    """``payload`` with the header stamp ``t_ns``, nothing else (little-endian CDR)."""
-    if payload[1:2] != b"\x01":
-        raise DataError("cannot restamp a big-endian CDR payload")
-    sec, nanosec = divmod(t_ns, _NS_PER_S)
+def _restamped(payload: bytes, shift_ns: int) -> bytes:
+    """``payload`` with its header stamp shifted by ``shift_ns``, nothing else.
+
+    A payload without a readable stamp (:func:`_stamp_ns`) goes out as it was recorded.
+    """
+    t_ns = _stamp_ns(payload)
+    if t_ns is None:
+        return payload
+    sec, nanosec = divmod(t_ns + shift_ns, _NS_PER_S)
     out = bytearray(payload)
     _STAMP.pack_into(out, _STAMP_OFFSET, sec, nanosec)
     return bytes(out)

@@ -123,6 +123,7 @@ class Ros2Recorder:
         key = str(sample.key_expr)
         try:
             topic, ros_type = graph.parse_topic_key(key)
+            key = topic  # counted by topic, as the service counts its input
             raw = sample.attachment
             if raw is None:
                 raise MessageError("sample without rmw_zenoh's attachment")

@@ -19,6 +19,7 @@ import subprocess
 import time
 
 import pytest
+import zenoh
 from mcap.reader import make_reader
 from teleop_helpers import STARTUP_TIMEOUT_S, python_module
 
@@ -99,19 +100,26 @@ def test_demo_messages_decode_with_rclpy_to_the_values_sent(tmp_path):
                 (sample.payload.to_bytes(), Attachment.decode(sample.attachment.to_bytes()))
             )
 
+    seen_tokens: set[str] = set()
+
+    def keep_token(sample) -> None:  # every token declared while the demo runs
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen_tokens.add(str(sample.key_expr))
+
     session = _peer(port)
     try:
         subs = [
             session.declare_subscriber("0/**", keep_ros),
             session.declare_subscriber("omni/**", lambda s: project_keys.append(str(s.key_expr))),
+            session.liveliness().declare_subscriber("@ros2_lv/0/**", keep_token, history=True),
         ]
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while time.monotonic() < deadline and (
             len(ros) < 7 or any(len(v) < KEPT for k, v in ros.items() if k.split("/")[2] in ONE_KHZ)
         ):
             time.sleep(0.2)
-        tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=3)
-                  if r.ok is not None]  # fmt: skip
+        time.sleep(0.5)  # the last tokens' samples
+        tokens = sorted(seen_tokens)
         for sub in subs:
             sub.undeclare()
     finally:
@@ -210,20 +218,20 @@ def test_demo_messages_decode_with_rclpy_to_the_values_sent(tmp_path):
         assert codec.decode_service_diagnostics(payload, a.sequence_number).device == "slave"
 
     # The recording: the ROS messages as they arrived, seq and source time from the attachment
-    (recording,) = tmp_path.glob("demo-*.mcap")  # RECORDING
-    with open(recording, "rb") as f:  # RECORDING
-        reader = make_reader(f)  # RECORDING
-        assert reader.get_header().profile == "ros2"  # RECORDING
-        recorded = collections.defaultdict(dict)  # RECORDING
-        for schema, channel, message in reader.iter_messages():  # RECORDING
-            if channel.topic.startswith("/"):  # RECORDING
-                assert schema.name == publishers[channel.topic].topic.ros_type  # RECORDING
-                recorded[channel.topic][message.sequence] = message  # RECORDING
-    assert set(recorded) >= EXPECTED_PUBLISHED - {"/slave/service/diagnostics"}  # RECORDING
-    for name, entity in publishers.items():  # RECORDING
+    (recording,) = tmp_path.glob("demo-*.mcap")
+    with open(recording, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        recorded = collections.defaultdict(dict)
+        for schema, channel, message in reader.iter_messages():
+            if channel.topic.startswith("/"):
+                assert schema.name == publishers[channel.topic].topic.ros_type
+                recorded[channel.topic][message.sequence] = message
+    assert set(recorded) >= EXPECTED_PUBLISHED - {"/slave/service/diagnostics"}
+    for name, entity in publishers.items():
         key = graph.topic_key(0, name, entity.topic.ros_type, entity.topic.type_hash)
-        for payload, attachment in ros[key]:  # RECORDING
-            message = recorded[name].get(attachment.sequence_number)  # RECORDING
-            assert message is not None, (name, attachment.sequence_number)  # RECORDING
-            assert message.data == payload  # RECORDING
-            assert message.publish_time == attachment.source_timestamp_ns  # RECORDING
+        for payload, attachment in ros[key]:
+            message = recorded[name].get(attachment.sequence_number)
+            assert message is not None, (name, attachment.sequence_number)
+            assert message.data == payload
+            assert message.publish_time == attachment.source_timestamp_ns

@@ -100,7 +100,7 @@ def test_demo_runs_for_its_duration_and_leaves_nothing(tmp_path):
     assert set(summary["scheduling"]) == CHILDREN
     print(f"CPU {cpu}, scheduling {summary['scheduling']}")
     assert "slave loop:" in out and "master loop:" in out and "slave holds:" in out
-    assert (tmp_path / summary["recording"].split("/")[-1]).stat().st_size > 10_000  # RECORDING
+    assert (tmp_path / summary["recording"].split("/")[-1]).stat().st_size > 10_000
 
 
 def test_demo_stops_everything_on_sigterm(tmp_path):

@@ -484,7 +484,7 @@ def test_master_killed_slave_holds_and_resumes_when_it_is_restarted(system):
 
 def _recorded_counts(counts: Counter[str]) -> int:
     """What a recorder of the recorded topics and the estimates got (by ROS topic name)."""
-    return sum(counts.values())  # RECORDING
+    return sum(counts.values())
 
 
 def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
@@ -502,9 +502,9 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
     service.wait(10)
     killed = time.perf_counter()
     record = system.records[-1]
-    reader = SessionReader(record)  # opens: a killed writer's file needs no footer  # RECORDING
-    in_file = sum(reader.message_counts.values())  # RECORDING
-    iterated = sum(1 for _ in reader.messages())  # every counted message decodes  # RECORDING
+    reader = SessionReader(record)  # opens: a killed writer's file needs no footer
+    in_file = sum(reader.message_counts.values())
+    iterated = sum(1 for _ in reader.messages())  # every counted message decodes
     received = _recorded_counts(seen)
     # The slave goes on without the service: no hold, no gap in its joint states.
     time.sleep(1.0)
@@ -521,8 +521,8 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
         "written_reported_before_kill": recording["messages"],
         "received_by_separate_subscriber": received,
         "readable_in_file": in_file,
-        "fraction_kept_of_written": round(in_file / recording["messages"], 5),  # RECORDING
-        "fraction_kept_of_received": round(in_file / received, 5),  # RECORDING
+        "fraction_kept_of_written": round(in_file / recording["messages"], 5),
+        "fraction_kept_of_received": round(in_file / received, 5),
         "recording_length_s": round(killed - service_started, 1),
         "file_opened": True,
         "messages_iterated": iterated,
@@ -533,17 +533,17 @@ def test_recorder_killed_keeps_what_was_written_and_the_service_resumes(system):
         "load_average": os.getloadavg(),
     }
     RESULTS["slave_joint_states_observer_gaps"] = int(np.sum(np.diff(seqs) != 1))
-    assert reader.truncated  # killed: no footer, and still readable  # RECORDING
-    assert iterated == in_file  # RECORDING
+    assert reader.truncated  # killed: no footer, and still readable
+    assert iterated == in_file
     # Everything the writer reported durable (in complete chunks) before the kill is there,
     # and at least 99 % of what it reported written (durable or in the open chunk).
-    assert in_file >= recording["durable"]  # RECORDING
-    assert in_file >= 0.99 * recording["messages"]  # RECORDING
+    assert in_file >= recording["durable"]
+    assert in_file >= 0.99 * recording["messages"]
     # What a separate subscriber got but the file lacks is what was still queued or in the
     # open chunk at the kill: bounded in time (flush interval + recorder backlog), not in
     # fraction; it is reported, and must stay under one second of the session's traffic.
     rate = received / (killed - service_started)
-    assert received - in_file <= rate * 1.0, (received, in_file, rate)  # RECORDING
+    assert received - in_file <= rate * 1.0, (received, in_file, rate)
     assert js_during > js_before + 500  # the slave kept streaming while the service was gone
     assert new[0][1].seq == 1  # a fresh service: its publisher's attachment counts from 1
     assert system.observer.state() == "FOLLOWING"

@@ -183,10 +183,17 @@ def test_a_ros2_session_exports_to_json_and_reads_back(tmp_path):
     assert list(b.messages()) == list(a.messages())
 
 
-def test_a_bad_ros2_message_is_named(tmp_path):
+def test_a_bad_ros2_message_is_counted_and_skipped(tmp_path):
+    """A session holds the traffic as received: a malformed message is skipped, counted."""
     path = tmp_path / "s.mcap"
+    good = codec.encode_joint_state(m.JointState(0, T_NS, (0.1,), (0.0,), (0.0,)), ())
     with SessionWriter(path, profile="ros2") as writer:
         writer.write_ros2("/slave/measured_js", interfaces.JOINT_STATE, b"\x00\x01\x00\x00\x01",
                           1, T_NS, T_NS)  # fmt: skip
-    with pytest.raises(DataError, match=r"measured_js.*bad sensor_msgs/msg/JointState"):
-        list(SessionReader(path).messages())
+        writer.write_ros2("/slave/measured_js", interfaces.JOINT_STATE, good, 2, T_NS, T_NS + 1)
+        writer.write_ros2("/slave/estimated_cf", interfaces.WRENCH_STAMPED, b"\x00\x01", 1, T_NS,
+                          T_NS + 2)  # fmt: skip
+    reader = SessionReader(path)
+    got = list(reader.messages())
+    assert [(topic, message.seq) for topic, _, message in got] == [("/slave/measured_js", 2)]
+    assert reader.malformed == {"/slave/measured_js": 1, "/slave/estimated_cf": 1}
