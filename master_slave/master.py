@@ -57,7 +57,7 @@ from teleop_force.process.lifetime import (
 )
 from teleop_force.process.memory import MemoryTrimmer
 from teleop_force.robots import omni
-from teleop_force.ros2 import codec
+from teleop_force.ros2 import codec, fast_cdr
 from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.topics import SETPOINT_JS
@@ -81,6 +81,7 @@ SEQ_MASK = 0xFFFF_FFFF
 HAND_PLUS_MOTOR_LIMIT_NM = 3.0
 #: Feedback older than this is not displayed [s].
 FEEDBACK_STALE_S = 0.05
+_WRENCH = fast_cdr.WrenchLayout(ros2_topics.BASE_FRAME)
 
 
 @dataclass(frozen=True)
@@ -136,7 +137,8 @@ class FeedbackInbox:
         """rmw_zenoh callback: a WrenchStamped; seq and latency from the attachment."""
         arrival_ns = time.time_ns()
         try:
-            f_n = codec.decode_wrench(payload).force_n
+            fast = _WRENCH.unpack(payload)  # one struct call; another layout through rosbags
+            f_n = codec.decode_wrench(payload).force_n if fast is None else fast[1]
         except MessageError:
             with self._lock:
                 self.malformed += 1

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any, Final
 
 from teleop_force.errors import MessageError
-from teleop_force.ros2 import codec, topics
+from teleop_force.ros2 import codec, fast_cdr, topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport import messages as m
@@ -102,6 +102,11 @@ class EstimateJoiner:
         self._n_joints = n_joints
         self._seq_mask = seq_mask
         self._max_unpaired = max(1, int(max_unpaired))
+        # the project's own layout in one struct call; any other through rosbags
+        names = topics.model_joint_names(3 if n_joints is None else n_joints)
+        self._fast_wrench = fast_cdr.WrenchLayout(topics.BASE_FRAME)
+        self._fast_diagnostics = fast_cdr.EstimateDiagnosticsLayout(names, topics.BASE_FRAME)
+        self._names = names
         self._lock = threading.Lock()
         self._wrenches: OrderedDict[int, tuple[codec.Wrench, Attachment]] = OrderedDict()
         self._diagnostics: OrderedDict[int, codec.EstimateDiagnostics] = OrderedDict()
@@ -109,7 +114,11 @@ class EstimateJoiner:
 
     def on_wrench(self, payload: bytes, attachment: Attachment) -> None:
         """One WrenchStamped of ``estimated_cf`` (raises MessageError if it does not parse)."""
-        wrench = codec.decode_wrench(payload)
+        fast = self._fast_wrench.unpack(payload)
+        if fast is None:
+            wrench = codec.decode_wrench(payload)
+        else:
+            wrench = codec.Wrench(fast[0], topics.BASE_FRAME, fast[1], fast[2])
         with self._lock:
             diagnostics = self._diagnostics.pop(wrench.t_ns, None)
             if diagnostics is None:
@@ -119,7 +128,15 @@ class EstimateJoiner:
 
     def on_diagnostics(self, payload: bytes, attachment: Attachment) -> None:
         """One EstimateDiagnostics (raises MessageError if it does not parse)."""
-        diagnostics = codec.decode_estimate_diagnostics(payload)
+        fast = self._fast_diagnostics.unpack(payload)
+        if fast is None:
+            diagnostics = codec.decode_estimate_diagnostics(payload)
+        else:
+            t_ns, source, (ext, coverage, motor, model), on_ground = fast
+            diagnostics = codec.EstimateDiagnostics(
+                t_ns, topics.BASE_FRAME, source, self._names, ext, coverage, on_ground, motor,
+                model,
+            )  # fmt: skip
         _joint_count(len(diagnostics.tau_ext_nm), self._n_joints)
         with self._lock:
             pair = self._wrenches.pop(diagnostics.t_ns, None)

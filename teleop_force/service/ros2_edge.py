@@ -28,7 +28,7 @@ import zenoh
 
 from teleop_force.errors import ConfigurationError, DataError, MessageError
 from teleop_force.robots.driver_interface import DriverInterface
-from teleop_force.ros2 import codec, streams, topics
+from teleop_force.ros2 import codec, fast_cdr, streams, topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, Subscription
 from teleop_force.transport import messages as m
@@ -71,6 +71,10 @@ class Ros2Edge:
                 f"driver {driver.name} maps {driver.n_joints} joints, the model has {n_joints}"
             )
         self._zeros = (0.0,) * n_joints
+        # the 1 kHz messages in one struct call each; any other layout goes through rosbags
+        self._joint_state = fast_cdr.JointStateLayout(self.names)
+        self._wrench = fast_cdr.WrenchLayout(topics.BASE_FRAME)
+        self._diagnostics = fast_cdr.EstimateDiagnosticsLayout(self.names, topics.BASE_FRAME)
         codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
         self.node = Node(session, NODE_NAME, domain_id=domain_id)
         self.estimates = self.node.publisher(
@@ -113,8 +117,12 @@ class Ros2Edge:
         seq = attachment.sequence_number & 0xFFFF_FFFF
         try:
             if self.driver is None:
-                msg, named = codec.decode_joint_state(payload, seq)
-                streams.check_joint_names(named.names, self.names)
+                fast = self._joint_state.unpack(payload)
+                if fast is not None:  # the model's names, three arrays of n
+                    msg = m.JointState(seq, *fast)
+                else:
+                    msg, named = codec.decode_joint_state(payload, seq)
+                    streams.check_joint_names(named.names, self.names)
             else:
                 msg = self._from_driver(payload, seq)
         except (MessageError, DataError) as exc:
@@ -142,9 +150,10 @@ class Ros2Edge:
         tau_model_filtered_nm: Sequence[float],
     ) -> None:
         """Publish one estimate as its WrenchStamped, then its EstimateDiagnostics."""
-        wrench, diagnostics = codec.encode_estimate_parts(
-            t_ns, source_sequence, force_n, tau_ext_nm, coverage_weight, on_trained_ground,
-            tau_motor_filtered_nm, tau_model_filtered_nm, self.names, topics.BASE_FRAME,
+        wrench = self._wrench.pack(t_ns, force_n)
+        diagnostics = self._diagnostics.pack(
+            t_ns, source_sequence, tau_ext_nm, coverage_weight, on_trained_ground,
+            tau_motor_filtered_nm, tau_model_filtered_nm,
         )  # fmt: skip
         self.estimates.publish(wrench, t_ns)
         self.diagnostics.publish(diagnostics, t_ns)

@@ -68,11 +68,13 @@ def test_samples_that_are_no_ros2_messages_are_counted_with_their_key(
         "path": str(writer.path), "messages": 1, "durable": 1, "received": 5, "backlog": 0,
         "dropped": 0, "malformed": 4,
     }  # fmt: skip
-    assert [key for key, _ in seen] == [
-        publisher.key, publisher.key, f"{DOMAIN}/not_a_topic_key",
-        "0/slave/measured_js/geometry_msgs::msg::dds_::WrenchStamped_/RIHS01_0",
-    ]  # fmt: skip
-    assert "attachment" in str(seen[0][1]) and "carries" in str(seen[3][1])
+    # by topic where the key names one (as the service counts its input), else by key
+    assert sorted(key for key, _ in seen) == sorted([
+        "/slave/measured_js", "/slave/measured_js", f"{DOMAIN}/not_a_topic_key",
+        "/slave/measured_js",
+    ])  # fmt: skip
+    assert any("carries" in str(exc) for _, exc in seen)
+    assert sum("attachment" in str(exc) for _, exc in seen) == 2
     assert SessionReader(writer.path).message_counts == {"/slave/measured_js": 1}
 
 
