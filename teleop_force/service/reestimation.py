@@ -443,7 +443,8 @@ def _service_stats(
             "errors": run.errors,
             "last_error": run.last_error,
         },
-        "malformed": run.malformed.to_dict(),
+        # the live service's keys; a recording holds no attachments to miss
+        "malformed": {**run.malformed.to_dict(), "without_attachment": 0},
         "latency_ms": dict(empty),
         "processing_ms": dict(empty),
         "on_ground_fraction": _fraction(int(on_ground.all(axis=1).sum()), count),

@@ -510,8 +510,12 @@ def random_mutation(rng: random.Random, data: bytes, max_ops: int = 4) -> bytes:
 
 def fuzzed_payloads(n: int, seed: int = 0) -> list[bytes]:
     """``n`` payloads: mutated valid messages of every type, random bytes, and valid ones."""
+    return _fuzzed(_message_seeds(), n, seed)
+
+
+def _fuzzed(seeds: list[bytes], n: int, seed: int) -> list[bytes]:
+    """``n`` payloads of ``seeds``: one in ten random bytes, one in ten a seed, the rest mutated."""
     rng = random.Random(seed)
-    seeds = _message_seeds()
     out = []
     for k in range(n):
         choice = k % 10
@@ -536,18 +540,7 @@ def ros2_seeds() -> list[bytes]:
 
 def fuzzed_ros2_payloads(n: int, seed: int = 0) -> list[bytes]:
     """``n`` payloads: mutated valid CDR messages of every topic, random bytes, valid ones."""
-    rng = random.Random(seed)
-    seeds = ros2_seeds()
-    out = []
-    for k in range(n):
-        choice = k % 10
-        if choice == 0:
-            out.append(rng.randbytes(rng.randint(0, 120)))
-        elif choice == 1:
-            out.append(rng.choice(seeds))
-        else:
-            out.append(random_mutation(rng, rng.choice(seeds)))
-    return out
+    return _fuzzed(ros2_seeds(), n, seed)
 
 
 def count(target_name: str, outcome: str, n: int = 1) -> None:
