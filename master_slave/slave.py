@@ -68,7 +68,7 @@ from teleop_force.process.lifetime import (
     write_json,
 )
 from teleop_force.process.memory import MemoryTrimmer
-from teleop_force.ros2 import codec, fast_cdr
+from teleop_force.ros2 import streams
 from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Subscription
@@ -100,9 +100,8 @@ ROLE = "slave"
 JOINTS = 3
 STATUS_PERIOD_S = 0.1
 SEQ_MASK = 0xFFFF_FFFF
-_SETPOINT = fast_cdr.JointStateLayout(
-    ros2_topics.model_joint_names(JOINTS), velocities=False, efforts=False
-)
+#: A setpoint in the model's coordinates: names empty or the model's, three joints.
+_DECODE_SETPOINT = streams.decoder(ros2_topics.SETPOINT_JS, JOINTS)
 #: Hold events kept for the statistics (the oldest are dropped; all are counted).
 HOLD_EVENTS_KEPT = 20
 
@@ -266,17 +265,8 @@ class SetpointInbox:
         """
         arrival_ns = time.time_ns()
         arrival_s = time.perf_counter()
-        seq = attachment.sequence_number & SEQ_MASK
         try:
-            fast = _SETPOINT.unpack(payload)  # one struct call; another layout through rosbags
-            if fast is not None:
-                msg = m.JointSetpoint(seq, fast[0], fast[1])
-            else:
-                msg, named = codec.decode_joint_setpoint(payload, seq)
-                names = ros2_topics.model_joint_names(JOINTS)
-                if msg.n_joints != JOINTS or named.names not in ((), names):
-                    got = list(named.names) or msg.n_joints
-                    raise MessageError(f"setpoint of joints {got}, expected {list(names)}")
+            msg = _DECODE_SETPOINT(payload, attachment.sequence_number & SEQ_MASK)
         except MessageError as exc:
             self._count_malformed(exc)
             return

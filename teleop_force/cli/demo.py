@@ -122,10 +122,9 @@ from teleop_force.process.warm_up import (
     is_warm,
     warm_up,
 )
-from teleop_force.ros2 import codec, fast_cdr, topics
+from teleop_force.ros2 import codec, streams, topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, QueueSubscription
-from teleop_force.ros2.streams import EstimateJoiner
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
 from teleop_force.transport import keys
 from teleop_force.transport import messages as m
@@ -410,8 +409,7 @@ class _Presence:
 #: (and count as lost): the supervisor never blocks a publisher.
 _CHANNEL_CAPACITY: Final = 1 << 16
 _SEQ_MASK: Final = 0xFFFF_FFFF
-#: The slave's true force in one struct call (fast_cdr), any other layout through rosbags.
-_WRENCH: Final = fast_cdr.WrenchLayout(topics.BASE_FRAME)
+_DECODE_TRUE_FORCE: Final = streams.decoder(topics.TRUE_CF)
 #: Where each process listens for its peers' direct links (a free port on loopback).
 _ANY_LOOPBACK_PORT: Final = "tcp/127.0.0.1:0"
 #: How often the monitor drains its channels [s].
@@ -441,7 +439,7 @@ class _Monitor:
         self.reason = ""
         self.holds_seen = 0
         self._node: Node | None = None
-        self._joiner = EstimateJoiner(self._on_estimate, max_unpaired=_CHANNEL_CAPACITY)
+        self._joiner = streams.EstimateJoiner(self._on_estimate, max_unpaired=_CHANNEL_CAPACITY)
         self._subscriptions: list[tuple[QueueSubscription, Callable[[bytes, Attachment], None]]]
         self._subscriptions = []
         self._lock = threading.Lock()  # one drain at a time (worker, final drain)
@@ -504,14 +502,9 @@ class _Monitor:
 
     def _on_true_force(self, payload: bytes, attachment: Attachment) -> None:
         seq = attachment.sequence_number & _SEQ_MASK
-        fast = _WRENCH.unpack(payload)
-        force_n: Sequence[float]
-        if fast is not None and fast_cdr.finite(fast[1]):
-            force_n = fast[1]
-        else:
-            force_n = codec.decode_contact_force(payload, seq).f_n  # raises MessageError
+        force = _DECODE_TRUE_FORCE(payload, seq)  # raises MessageError
         self.true_forces.observe(seq)
-        self.accuracy.add_true(seq, force_n)
+        self.accuracy.add_true(seq, force.f_n)
 
     def _on_status(self, payload: bytes, attachment: Attachment) -> None:
         status = codec.decode_status(payload, attachment.sequence_number & _SEQ_MASK)

@@ -253,7 +253,7 @@ def encode_estimate_parts(
 ) -> tuple[bytes, bytes]:
     """Return an estimate's WrenchStamped and EstimateDiagnostics (one header) from its parts.
 
-    The service's path: no message value is built. ``force_n`` may hold NaN (near-singular).
+    No message value is built; ``force_n`` may hold NaN (near-singular).
     """
     diagnostics = _serialize(
         _ESTIMATE_DIAGNOSTICS(

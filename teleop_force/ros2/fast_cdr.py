@@ -18,7 +18,6 @@ back to :mod:`teleop_force.ros2.codec`.
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Sequence
 from typing import Final
@@ -241,8 +240,3 @@ class EstimateDiagnosticsLayout:
         on_ground = tuple(bool(x) for x in rest[2 * n : 3 * n])
         t_ns = int(values[0]) * _NS_PER_S + int(values[1])
         return t_ns, int(values[2]), floats, on_ground
-
-
-def finite(values: Sequence[float]) -> bool:
-    """Whether every value is finite (what the project's message values require)."""
-    return all(math.isfinite(x) for x in values)

@@ -51,27 +51,48 @@ def _joint_count(n: int, expected: int | None) -> None:
 
 
 def decoder(topic: topics.Topic, n_joints: int | None = None) -> Callable[[bytes, int], Any]:
-    """Return ``decode(payload, seq)`` for one topic kind (not the estimate: two messages)."""
+    """Return ``decode(payload, seq)`` for one topic kind (not the estimate: two messages).
+
+    The project's own layouts (the model's names, the base frame) are read in one struct call
+    (:mod:`~teleop_force.ros2.fast_cdr`); any other payload through rosbags, with the same
+    checks: the two accept and refuse the same payloads.
+    """
     names = None if n_joints is None else topics.model_joint_names(n_joints)
+    fast_names = topics.model_joint_names(3 if n_joints is None else n_joints)
+    fast_js = fast_cdr.JointStateLayout(fast_names)
+    fast_setpoint = fast_cdr.JointStateLayout(fast_names, velocities=False, efforts=False)
+    fast_wrench = fast_cdr.WrenchLayout(topics.BASE_FRAME)
 
     def joint_state(payload: bytes, seq: int) -> m.JointState:
+        fast = fast_js.unpack(payload)
+        if fast is not None:
+            return m.JointState(seq, *fast)
         msg, named = codec.decode_joint_state(payload, seq)
-        _joint_count(len(msg.q_rad), n_joints)
-        if names is not None:
+        if names is not None:  # the names first: they say whose coordinates these are
             check_joint_names(named.names, names)
+        _joint_count(len(msg.q_rad), n_joints)
         return msg
 
     def setpoint(payload: bytes, seq: int) -> m.JointSetpoint:
+        fast = fast_setpoint.unpack(payload)
+        if fast is not None:
+            return m.JointSetpoint(seq, fast[0], fast[1])
         msg, named = codec.decode_joint_setpoint(payload, seq)
-        _joint_count(len(msg.q_rad), n_joints)
-        if names is not None:
+        if names is not None:  # the names first: they say whose coordinates these are
             check_joint_names(named.names, names)
+        _joint_count(len(msg.q_rad), n_joints)
         return msg
+
+    def true_force(payload: bytes, seq: int) -> m.ContactForce:
+        fast = fast_wrench.unpack(payload)
+        if fast is not None:
+            return m.ContactForce(seq, fast[0], fast[1])
+        return codec.decode_contact_force(payload, seq)
 
     table: dict[str, Callable[[bytes, int], Any]] = {
         topics.MEASURED_JS.kind: joint_state,
         topics.SETPOINT_JS.kind: setpoint,
-        topics.TRUE_CF.kind: codec.decode_contact_force,
+        topics.TRUE_CF.kind: true_force,
         topics.STATUS.kind: codec.decode_status,
         topics.SERVICE_DIAGNOSTICS.kind: codec.decode_service_diagnostics,
     }

@@ -72,7 +72,7 @@ class Ros2Edge:
             )
         self._zeros = (0.0,) * n_joints
         # the 1 kHz messages in one struct call each; any other layout goes through rosbags
-        self._joint_state = fast_cdr.JointStateLayout(self.names)
+        self._decode_joint_state = streams.decoder(topics.MEASURED_JS, n_joints)
         self._wrench = fast_cdr.WrenchLayout(topics.BASE_FRAME)
         self._diagnostics = fast_cdr.EstimateDiagnosticsLayout(self.names, topics.BASE_FRAME)
         codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
@@ -117,12 +117,7 @@ class Ros2Edge:
         seq = attachment.sequence_number & 0xFFFF_FFFF
         try:
             if self.driver is None:
-                fast = self._joint_state.unpack(payload)
-                if fast is not None:  # the model's names, three arrays of n
-                    msg = m.JointState(seq, *fast)
-                else:
-                    msg, named = codec.decode_joint_state(payload, seq)
-                    streams.check_joint_names(named.names, self.names)
+                msg = self._decode_joint_state(payload, seq)
             else:
                 msg = self._from_driver(payload, seq)
         except (MessageError, DataError) as exc:
