@@ -35,12 +35,25 @@ then ``--config that-file.json5``. The same keys can be set programmatically wit
 ``zenoh.Config.insert_json5("transport/link/tls/root_ca_certificate", '"/etc/teleop/ca.pem"')``.
 The certificate of the listening side must name the host the others connect to (or use
 ``verify_name_on_connect: false`` on a closed network). See https://zenoh.io/docs/manual/tls/.
+
+Zenoh's threads
+---------------
+Unless ``ZENOH_RUNTIME`` is set in the environment, a session runs Zenoh's receiving,
+networking, accepting and application tasks on one thread and sends on another
+(:data:`DEFAULT_RUNTIME`, Zenoh's own syntax). Zenoh's default spreads them over five
+runtimes, so every sample received wakes two or three threads: the socket's readiness on
+one, the reading task on another. Sending stays on a thread of its own because the service
+publishes from its subscriber's callback: on a single thread, a publication that waits for
+room in the send queue (congestion control BLOCK) would wait for the very thread it holds.
+The variable is read once per process, when the first session opens (figures:
+docs/architecture.md, "Zenoh's threads").
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import socket
 from collections.abc import Sequence
@@ -57,6 +70,11 @@ MODES: Final = ("peer", "client", "router")
 #: Loopback, any free port: the default listening endpoint of a peer.
 DEFAULT_LISTEN: Final = ("tcp/127.0.0.1:0",)
 DEFAULT_MODE: Final = "peer"
+#: ``ZENOH_RUNTIME`` a session opens with unless the environment sets it: everything but
+#: sending on one thread, sending on another.
+DEFAULT_RUNTIME: Final = (
+    "(rx: (worker_threads: 1), net: (handover: rx), acc: (handover: rx), app: (handover: rx))"
+)
 _RUST_LOCATION: Final = re.compile(r"\s+at /\S+:\d+\.?$")
 
 
@@ -230,7 +248,16 @@ def open_session(options: ZenohOptions | None = None) -> zenoh.Session:
     A config file that cannot be loaded or a value Zenoh rejects raises ConfigurationError.
     """
     config = (options or ZenohOptions()).to_config()
+    os.environ.setdefault("ZENOH_RUNTIME", DEFAULT_RUNTIME)
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
         raise TransportError(f"cannot open zenoh session: {_zenoh_message(exc)}") from None
+    except BaseException as exc:  # pyo3's PanicException derives from BaseException only
+        if type(exc).__name__ != "PanicException":
+            raise
+        runtime = os.environ.get("ZENOH_RUNTIME")
+        raise ConfigurationError(
+            f"cannot open zenoh session: zenoh panicked ({_zenoh_message(exc)}); "
+            f"is ZENOH_RUNTIME={runtime!r} valid?"
+        ) from None
