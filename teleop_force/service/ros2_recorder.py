@@ -5,7 +5,7 @@ recording (``--record``, the ``record`` control) both run. One subscriber on
 ``<ROS_DOMAIN_ID>/**`` (every data key of rmw_zenoh in the domain; its liveliness tokens are
 under ``@ros2_lv/``, not data) is a FIFO channel (:func:`~teleop_force.transport.pubsub.
 declare_queue_subscriber`): Zenoh's receive thread queues each sample without running Python.
-A thread of the recorder takes what has arrived every :data:`DRAIN_INTERVAL_S` (20 ms) and
+A thread of the recorder takes what has arrived every :data:`DRAIN_INTERVAL_S` (100 ms) and
 writes it topic by topic, a topic's same-size payloads in one block
 (:meth:`SessionWriter.write_ros2_block
 <teleop_force.io.mcap_session.SessionWriter.write_ros2_block>`, no Python per message beyond
@@ -46,7 +46,7 @@ from teleop_force.ros2.graph import GID_SIZE
 from teleop_force.transport.pubsub import declare_queue_subscriber, undeclare_all
 
 #: How often the drain thread takes the samples waiting in the FIFO [s].
-DRAIN_INTERVAL_S: Final = 0.02
+DRAIN_INTERVAL_S: Final = 0.1
 #: Samples the FIFO holds (10 s of six 1 kHz topics): never reached while draining.
 FIFO_CAPACITY: Final = 60_000
 #: The MCAP profile of a session recorded by :class:`Ros2Recorder`.
