@@ -562,6 +562,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_robots(subparsers)
     _add_demo(subparsers)
     _add_serve(subparsers)
+    _add_check_driver(subparsers)
     _add_replay(subparsers)
     _add_export_json(subparsers)
     _add_bench(subparsers)
@@ -817,6 +818,24 @@ def _add_serve(subparsers: _Subparsers) -> None:
     )
     # Never parsed here: main() hands everything after "serve" to the service's own parser.
     p.set_defaults(run=lambda args: _serve([]))
+
+
+def _cmd_check_driver(args: argparse.Namespace) -> int:
+    from teleop_force.cli.check_driver import run
+
+    return run(args)
+
+
+def _add_check_driver(subparsers: _Subparsers) -> None:
+    from teleop_force.cli.check_driver import add_arguments
+
+    p = subparsers.add_parser(
+        "check-driver",
+        help="check a driver description against the live driver (measured_js vs measured_cp; "
+        "--probe-force-n: efforts vs measured_cf)",
+    )
+    add_arguments(p)
+    p.set_defaults(run=_cmd_check_driver)
 
 
 def _add_replay(subparsers: _Subparsers) -> None:

@@ -37,6 +37,10 @@ _VECTOR3: Final = _T["geometry_msgs/msg/Vector3"]
 _WRENCH: Final = _T["geometry_msgs/msg/Wrench"]
 _JOINT_STATE: Final = _T[i.JOINT_STATE]
 _WRENCH_STAMPED: Final = _T[i.WRENCH_STAMPED]
+_POINT: Final = _T["geometry_msgs/msg/Point"]
+_QUATERNION: Final = _T["geometry_msgs/msg/Quaternion"]
+_POSE: Final = _T["geometry_msgs/msg/Pose"]
+_POSE_STAMPED: Final = _T[i.POSE_STAMPED]
 _ESTIMATE_DIAGNOSTICS: Final = _T[i.ESTIMATE_DIAGNOSTICS]
 _STATUS: Final = _T[i.STATUS]
 _SERVICE_DIAGNOSTICS: Final = _T[i.SERVICE_DIAGNOSTICS]
@@ -219,6 +223,39 @@ def decode_contact_force(payload: bytes | bytearray | memoryview, seq: int) -> m
     """Parse a WrenchStamped as the true tip force (finite numbers only)."""
     w = decode_wrench(payload)
     return m.ContactForce(seq, w.t_ns, w.force_n)
+
+
+# --------------------------------------------------------------------------- poses
+
+
+def encode_pose_stamped(
+    t_ns: int, position_m: Sequence[float], orientation_xyzw: Sequence[float], frame_id: str
+) -> bytes:
+    """Return ``geometry_msgs/msg/PoseStamped``: position [m], orientation quaternion (x y z w)."""
+    px, py, pz = (float(v) for v in position_m)
+    qx, qy, qz, qw = (float(v) for v in orientation_xyzw)
+    return _serialize(
+        _POSE_STAMPED(
+            header=_header(t_ns, frame_id),
+            pose=_POSE(position=_POINT(x=px, y=py, z=pz),
+                       orientation=_QUATERNION(x=qx, y=qy, z=qz, w=qw)),
+        ),
+        i.POSE_STAMPED,
+    )  # fmt: skip
+
+
+def decode_pose_stamped(
+    payload: bytes | bytearray | memoryview,
+) -> tuple[int, tuple[float, float, float], tuple[float, float, float, float], str]:
+    """Parse a PoseStamped: ``(t_ns, position_m, orientation_xyzw, frame_id)`` (any numbers)."""
+    d = _deserialize(payload, i.POSE_STAMPED)
+    p, o = d.pose.position, d.pose.orientation
+    return (
+        _stamp_ns(d.header),
+        (float(p.x), float(p.y), float(p.z)),
+        (float(o.x), float(o.y), float(o.z), float(o.w)),
+        d.header.frame_id,
+    )
 
 
 # --------------------------------------------------------------------------- estimate

@@ -26,6 +26,7 @@ INTERFACE_DIR: Final = Path(__file__).resolve().parent / "interfaces" / INTERFAC
 
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED: Final = "geometry_msgs/msg/WrenchStamped"
+POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
 ESTIMATE_DIAGNOSTICS: Final = f"{INTERFACE_PACKAGE}/msg/EstimateDiagnostics"
 STATUS: Final = f"{INTERFACE_PACKAGE}/msg/Status"
 SERVICE_DIAGNOSTICS: Final = f"{INTERFACE_PACKAGE}/msg/ServiceDiagnostics"
