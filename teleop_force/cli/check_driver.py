@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # the CLI builds its flags without rosbags or zenoh
     from teleop_force.robots.driver_interface import DriverInterface
     from teleop_force.ros2.attachment import Attachment
     from teleop_force.ros2.codec import RawJointState
-    from teleop_force.ros2.node import Node
+    from teleop_force.ros2.node import Node, Publisher
 
 #: The driver's tip pose in its base frame (CRTK ``measured_cp``), position in m.
 MEASURED_CP: Final = topics.Topic("measured_cp", interfaces.POSE_STAMPED)
@@ -269,16 +269,13 @@ def paired_efforts(
     return readings.positions[idx], readings.efforts[idx], np.asarray(force_rows)
 
 
-def probe_force(
-    node: Node, device: str, force_n: float, duration_s: float = PROBE_DURATION_S
-) -> None:
+def probe_force(publisher: Publisher, force_n: float, duration_s: float = PROBE_DURATION_S) -> None:
     """Command ``force_n`` N along x, y, then z (one third of ``duration_s`` each), then zero.
 
     The zero force is sent whatever happens (also on an error or Ctrl-C), twice.
     """
     from teleop_force.ros2 import codec
 
-    publisher = node.publisher(topics.topic_name(device, SERVO_CF), SERVO_CF.ros_type)
     frame = topics.BASE_FRAME
     try:
         period = 1.0 / PROBE_RATE_HZ
@@ -393,12 +390,21 @@ def run(args: argparse.Namespace) -> int:
         try:
             where = f"ROS domain {node.domain_id}, through {_endpoints(args)}"
             reader = DriverReader(node, device, forces=force_n is not None)
+            servo = None  # declared now: matched with the driver's subscriber by the probe
+            if force_n is not None:
+                servo = node.publisher(topics.topic_name(device, SERVO_CF), SERVO_CF.ros_type)
             time.sleep(seconds)
             for topic in (topics.MEASURED_JS, MEASURED_CP):
                 _wait_for(reader, topic.kind, device, seconds, where)
-            if force_n is not None:
+            if servo is not None:
+                last = reader.snapshot(topics.MEASURED_JS.kind).values[-1]
+                if not getattr(last, "effort", ()):
+                    raise DataError(
+                        f"/{device}/measured_js carries no efforts: the efforts cannot be "
+                        "checked (no force was commanded)"
+                    )
                 _print(f"servo_cf: {force_n:g} N along x, y, then z, then zero")
-                probe_force(node, device, float(force_n))
+                probe_force(servo, float(force_n))
                 _wait_for(reader, MEASURED_CF.kind, device, seconds + PROBE_DURATION_S, where)
             js = reader.snapshot(topics.MEASURED_JS.kind)
             cp = reader.snapshot(MEASURED_CP.kind)
