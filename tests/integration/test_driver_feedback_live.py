@@ -1,0 +1,160 @@
+"""Feedback to a driver that keeps its last force: zero on a stale estimate, exit and SIGKILL.
+
+The test plays the master driver as sawSensablePhantom behaves: it keeps the last
+``servo_cf`` it received (no timeout) and ``free`` drops it. The feedback process must leave it
+with no force whatever ends it.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from teleop_helpers import python_module, spawn, stop, wait_for
+
+from teleop_force.ros2 import codec, interfaces, topics
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.node import Node
+
+_ESTIMATE_N = (1.0, -2.0, 0.5)
+
+
+class KeepsLastForce:
+    """The master driver's command side: the force it applies is the last servo_cf."""
+
+    def __init__(self, node: Node) -> None:
+        self._lock = threading.Lock()
+        self.force_n = np.zeros(3)
+        self.commands = 0
+        self.frees = 0
+        node.subscription("/master/servo_cf", interfaces.WRENCH_STAMPED, self._on_servo_cf)
+        node.subscription("/master/free", "std_msgs/msg/Empty", self._on_free)
+
+    def _on_servo_cf(self, payload: bytes, attachment: Attachment) -> None:
+        force = np.array(codec.decode_wrench(payload).force_n)
+        with self._lock:
+            self.force_n, self.commands = force, self.commands + 1
+
+    def _on_free(self, payload: bytes, attachment: Attachment) -> None:
+        with self._lock:
+            self.force_n, self.frees = np.zeros(3), self.frees + 1
+
+    def applied(self) -> tuple[np.ndarray, int, int]:
+        with self._lock:
+            return self.force_n.copy(), self.commands, self.frees
+
+
+class Estimates:
+    """The service's side: estimated_cf at 200 Hz while ``running``."""
+
+    def __init__(self, node: Node) -> None:
+        self.publisher = node.publisher(
+            topics.topic_name("slave", topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type
+        )
+        self.running = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.005):
+            if self.running.is_set():
+                payload = codec.encode_wrench(time.time_ns(), _ESTIMATE_N, topics.BASE_FRAME)
+                self.publisher.publish(payload)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+
+
+@pytest.fixture
+def driver(zenoh_rendezvous: Any) -> Any:
+    session = zenoh_rendezvous.connect_peer()
+    node = Node(session, "test_master_driver")
+    driver, estimates = KeepsLastForce(node), Estimates(node)
+    try:
+        yield driver, estimates
+    finally:
+        estimates.close()
+        node.close()
+        session.close()
+
+
+def _start(zenoh_rendezvous: Any, tmp_path: Any, *extra: str) -> Any:
+    argv = python_module(
+        "master_slave.driver_feedback", "--master", "master", "--slave", "slave",
+        *extra, *zenoh_rendezvous.process_args,
+    )  # fmt: skip
+    return spawn(argv, tmp_path / "feedback.log")
+
+
+def _pushing(driver: KeepsLastForce) -> bool:
+    force, _, _ = driver.applied()
+    return bool(np.allclose(force, -0.5 * np.array(_ESTIMATE_N)))
+
+
+def _no_force(driver: KeepsLastForce) -> bool:
+    force, _, _ = driver.applied()
+    return not force.any()
+
+
+def test_sigkill_leaves_the_driver_with_no_force(
+    driver: Any, zenoh_rendezvous: Any, tmp_path: Any
+) -> None:
+    keeper, estimates = driver
+    estimates.running.set()
+    process = _start(zenoh_rendezvous, tmp_path)
+    try:
+        wait_for(lambda: _pushing(keeper), 30.0, "the feedback force at the driver")
+        process.send_signal(signal.SIGKILL)
+        process.wait(10.0)
+        # the estimates still arrive: only the watchdog can have zeroed the force
+        wait_for(lambda: _no_force(keeper), 10.0, "zero force after SIGKILL")
+        _, _, frees = keeper.applied()
+        assert frees >= 1
+        time.sleep(0.3)
+        assert _no_force(keeper)  # nothing commands a force any more
+    finally:
+        stop(process)
+
+
+def test_stale_estimate_then_clean_exit_command_zero(
+    driver: Any, zenoh_rendezvous: Any, tmp_path: Any
+) -> None:
+    keeper, estimates = driver
+    estimates.running.set()
+    process = _start(zenoh_rendezvous, tmp_path, "--no-watchdog")
+    try:
+        wait_for(lambda: _pushing(keeper), 30.0, "the feedback force at the driver")
+        estimates.running.clear()  # the service is lost: its last estimate goes stale
+        wait_for(lambda: _no_force(keeper), 10.0, "zero force on a stale estimate")
+        _, _, frees = keeper.applied()
+        assert frees == 0  # a zero command, while the process still runs
+        estimates.running.set()
+        wait_for(lambda: _pushing(keeper), 10.0, "the force back with fresh estimates")
+        assert stop(process, signal.SIGTERM) == 0
+        wait_for(lambda: _no_force(keeper), 10.0, "zero force after a clean exit")
+        assert keeper.applied()[2] >= 1  # and free
+    finally:
+        stop(process)
+
+
+def test_without_the_watchdog_sigkill_leaves_the_last_force(
+    driver: Any, zenoh_rendezvous: Any, tmp_path: Any
+) -> None:
+    """The control of the SIGKILL test: the driver itself never drops the force."""
+    keeper, estimates = driver
+    estimates.running.set()
+    process = _start(zenoh_rendezvous, tmp_path, "--no-watchdog")
+    try:
+        wait_for(lambda: _pushing(keeper), 30.0, "the feedback force at the driver")
+        process.send_signal(signal.SIGKILL)
+        process.wait(10.0)
+        time.sleep(1.0)
+        assert _pushing(keeper)
+    finally:
+        stop(process)
