@@ -19,7 +19,6 @@ from teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_f
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.ros2 import topics
 from teleop_force.transport import keys
-from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import query_json
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -27,20 +26,12 @@ from teleop_force.transport.session import (
     listen_endpoint,
     open_session,
 )
-from tests.ros2_traffic import Collector, JointStatePublisher
+from tests.ros2_traffic import Collector, JointStatePublisher, joint_states_500hz
 
 pytestmark = pytest.mark.zenoh
 DEVICE = "lab_slave"
 DOMAIN = 9
 N = 400
-
-
-def _joint_states(n: int, t0_ns: int = 1_764_158_400_000_000_000) -> list[m.JointState]:
-    t = np.arange(n) * 2e-3  # the Omni driver's 500 Hz
-    q = np.column_stack([0.2 * np.sin(2 * t), 0.8 + 0.3 * np.sin(3 * t), 0.3 + 0.2 * t])
-    tau = np.column_stack([0.02 * np.sin(5 * t), 0.15 + 0.01 * t, 0.05 + 0.01 * np.sin(7 * t)])
-    return [m.JointState(k + 1, t0_ns + k * 2_000_000, tuple(q[k]), (0.0,) * 3, tuple(tau[k]))
-            for k in range(n)]  # fmt: skip
 
 
 def _recorded(path) -> dict[str, list[tuple[int, object]]]:
@@ -75,7 +66,7 @@ def test_serve_equals_estimate_on_the_recorders_recording(tmp_path, monkeypatch)
         tmp_path / "serve.log",
     )  # fmt: skip
     driver = live = None
-    stream = _joint_states(N)
+    stream = joint_states_500hz(N)
     try:
         wait_for(lambda: "no joint state yet" in (tmp_path / "serve.log").read_text(),
                  STARTUP_TIMEOUT_S, "the service")  # fmt: skip
