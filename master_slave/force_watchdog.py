@@ -44,6 +44,7 @@ ROLE: Final = "force-watchdog"
 #: The driver's command topics (sawSensablePhantom's CRTK names).
 SERVO_CF: Final = "servo_cf"
 FREE: Final = "free"
+HOLD: Final = "hold"
 EMPTY: Final = "std_msgs/msg/Empty"
 #: How many times the zero force and ``free`` are sent, and how far apart [s].
 REPEATS: Final = 5
@@ -97,16 +98,19 @@ class ForceWatchdog:
 
 
 def start_force_watchdog(
-    device: str, connect: Sequence[str], *, timeout_s: float = 20.0
+    device: str, connect: Sequence[str], *, hold: Sequence[str] = (), timeout_s: float = 20.0
 ) -> ForceWatchdog:
     """Start the watchdog child for driver ``device``; return once it is armed.
 
     ``connect``: the Zenoh endpoints the child connects to (the driver's router or peer).
+    ``hold``: drivers that are sent ``hold`` as well (a slave following the dead process).
     Raises TransportError if the child does not report ready within ``timeout_s``.
     """
     argv = [sys.executable, "-m", "master_slave.force_watchdog", "--device", device]
     for endpoint in connect:
         argv += ["--connect", endpoint]
+    for name in hold:
+        argv += ["--hold", name]
     argv += ["--no-multicast"]
     # own process group: a Ctrl-C to the parent's group does not fire it before the parent's
     # own clean stop (which fires it anyway)
@@ -131,6 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m master_slave.force_watchdog", description=__doc__.splitlines()[0]
     )
     parser.add_argument("--device", required=True, help="the driver's namespace, e.g. master")
+    parser.add_argument(
+        "--hold", action="append", default=[], metavar="DEVICE",
+        help="a driver sent hold too (repeatable), e.g. the slave",
+    )  # fmt: skip
     add_zenoh_arguments(parser)
     return parser
 
@@ -147,11 +155,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         node = Node(session, "teleop_force_force_watchdog")
         sender = ZeroForceSender(node, args.device)
+        empty = encode_empty()
+        holds = [
+            node.publisher(f"/{ros2_topics.validate_device(name)}/{HOLD}", EMPTY)
+            for name in args.hold
+        ]
         os.write(sys.stdout.fileno(), READY_LINE)
         stdin = sys.stdin.buffer
         while stdin.read(4096):  # the parent never writes: returns b"" when it is gone
             pass
         sender.send()
+        for publisher in holds:
+            publisher.publish(empty)
         log(ROLE, f"parent gone: zero force and free sent to /{args.device}")
         node.close()
     except TeleopForceError as exc:

@@ -1,8 +1,9 @@
-"""Feedback to a driver that keeps its last force: zero on a stale estimate, exit and SIGKILL.
+"""Teleoperation through drivers that keep their last command: follow, hold, zero force.
 
-The test plays the master driver as sawSensablePhantom behaves: it keeps the last
-``servo_cf`` it received (no timeout) and ``free`` drops it. The feedback process must leave it
-with no force whatever ends it.
+The test plays both drivers as sawSensablePhantom behaves: the master keeps the last
+``servo_cf`` it received (no timeout) and ``free`` drops it; the slave follows ``servo_cp``
+and ``hold`` stops it. The teleop process must leave the master with no force and the slave
+holding, whatever ends it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,24 @@ from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node
 
 _ESTIMATE_N = (1.0, -2.0, 0.5)
+_POSE = "geometry_msgs/msg/PoseStamped"
+_MASTER_POSITION_M = (0.01, -0.02, 0.03)
+
+
+def _pose_payload(position_m: tuple[float, ...]) -> bytes:
+    store = interfaces.typestore()
+    t = store.types
+    sec, nanosec = divmod(time.time_ns(), 1_000_000_000)
+    pose = t[_POSE](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="base"
+        ),
+        pose=t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](*position_m),
+            orientation=t["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
+        ),
+    )
+    return bytes(store.serialize_cdr(pose, _POSE))
 
 
 class KeepsLastForce:
@@ -33,6 +52,19 @@ class KeepsLastForce:
         self.frees = 0
         node.subscription("/master/servo_cf", interfaces.WRENCH_STAMPED, self._on_servo_cf)
         node.subscription("/master/free", "std_msgs/msg/Empty", self._on_free)
+        self.slave_position_m: tuple[float, ...] | None = None
+        self.slave_holds = 0
+        node.subscription("/slave/servo_cp", _POSE, self._on_servo_cp)
+        node.subscription("/slave/hold", "std_msgs/msg/Empty", self._on_hold)
+
+    def _on_servo_cp(self, payload: bytes, attachment: Attachment) -> None:
+        p = codec.decode_message(payload, _POSE).pose.position
+        with self._lock:
+            self.slave_position_m = (p.x, p.y, p.z)
+
+    def _on_hold(self, payload: bytes, attachment: Attachment) -> None:
+        with self._lock:
+            self.slave_holds += 1
 
     def _on_servo_cf(self, payload: bytes, attachment: Attachment) -> None:
         force = np.array(codec.decode_wrench(payload).force_n)
@@ -49,12 +81,14 @@ class KeepsLastForce:
 
 
 class Estimates:
-    """The service's side: estimated_cf at 200 Hz while ``running``."""
+    """The service's side, estimated_cf, and the master's measured_cp, at 200 Hz."""
 
     def __init__(self, node: Node) -> None:
         self.publisher = node.publisher(
             topics.topic_name("slave", topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type
         )
+        self.pose_publisher = node.publisher("/master/measured_cp", _POSE)
+        self.pose_running = threading.Event()
         self.running = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -65,6 +99,8 @@ class Estimates:
             if self.running.is_set():
                 payload = codec.encode_wrench(time.time_ns(), _ESTIMATE_N, topics.BASE_FRAME)
                 self.publisher.publish(payload)
+            if self.pose_running.is_set():
+                self.pose_publisher.publish(_pose_payload(_MASTER_POSITION_M))
 
     def close(self) -> None:
         self._stop.set()
@@ -86,7 +122,7 @@ def driver(zenoh_rendezvous: Any) -> Any:
 
 def _start(zenoh_rendezvous: Any, tmp_path: Any, *extra: str) -> Any:
     argv = python_module(
-        "master_slave.driver_feedback", "--master", "master", "--slave", "slave",
+        "master_slave.driver_teleop", "--master", "master", "--slave", "slave",
         *extra, *zenoh_rendezvous.process_args,
     )  # fmt: skip
     return spawn(argv, tmp_path / "feedback.log")
@@ -121,6 +157,7 @@ def test_sigkill_leaves_the_driver_with_no_force(
         # the estimates still arrive: only the watchdog can have zeroed the force
         wait_for(lambda: _no_force(keeper), 10.0, "zero force after SIGKILL")
         assert keeper.applied()[2] >= 1  # free
+        wait_for(lambda: keeper.slave_holds >= 2, 10.0, "the slave's hold after SIGKILL")
         time.sleep(0.3)
         assert _no_force(keeper)  # nothing commands a force any more
     finally:
@@ -144,5 +181,25 @@ def test_stale_estimate_then_clean_exit_command_zero(
         assert stop(process, signal.SIGTERM) == 0
         wait_for(lambda: _no_force(keeper), 10.0, "zero force after a clean exit")
         assert keeper.applied()[2] >= 1  # and free
+    finally:
+        stop(process)
+
+
+def test_slave_follows_the_master_and_holds_when_it_is_lost(
+    driver: Any, zenoh_rendezvous: Any, tmp_path: Any
+) -> None:
+    keeper, estimates = driver
+    process = _start(zenoh_rendezvous, tmp_path, "--no-watchdog")
+    try:
+        wait_for(lambda: keeper.slave_holds >= 1, 30.0, "hold before any master pose")
+        estimates.pose_running.set()
+        wait_for(lambda: keeper.slave_position_m == _MASTER_POSITION_M, 10.0, "following")
+        holds = keeper.slave_holds
+        estimates.pose_running.clear()  # the master is lost
+        wait_for(lambda: keeper.slave_holds == holds + 1, 10.0, "hold when the master is lost")
+        time.sleep(0.3)
+        assert keeper.slave_holds == holds + 1  # once, not every tick
+        assert stop(process, signal.SIGTERM) == 0
+        wait_for(lambda: keeper.slave_holds == holds + 2, 10.0, "hold on exit")
     finally:
         stop(process)

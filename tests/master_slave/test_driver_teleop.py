@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from master_slave.driver_feedback import FeedbackConfig, feedback_force_n
+from master_slave.driver_teleop import FeedbackConfig, feedback_force_n
 from master_slave.force_watchdog import EMPTY, encode_empty
 from teleop_force.errors import ConfigurationError
 from teleop_force.ros2 import interfaces

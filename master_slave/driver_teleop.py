@@ -1,16 +1,28 @@
-"""Haptic feedback to a real master driver: the slave's estimate as the master's ``servo_cf``.
+"""Teleoperation through two drivers: the slave follows the master, the master feels the force.
 
-    python -m master_slave.driver_feedback --master master --slave slave --connect tcp/...
+    python -m master_slave.driver_teleop --master master --slave slave --connect tcp/...
 
-Every ``1 / rate_hz`` s (default 500 Hz, sawSensablePhantom's rate) it publishes on
-``/<master>/servo_cf`` (``geometry_msgs/msg/WrenchStamped``, frame ``base``) the force
-:func:`feedback_force_n` makes of the latest ``/<slave>/estimated_cf``: ``-scale F``, clipped
-to ``max_force_n`` (the driver's own clamp is 2.0 N). The driver keeps the last command with
-no timeout, so "no feedback" is always sent as a zero force, never as silence:
+sawSensablePhantom takes no joint-space command; what it accepts for following is
+``servo_cp`` (``geometry_msgs/msg/PoseStamped``, a translation-only PD in the driver). So
+every ``1 / rate_hz`` s (default 500 Hz, the driver's rate) this process
+
+- forwards the master's latest ``/<master>/measured_cp`` to ``/<slave>/servo_cp`` (the two
+  devices share the base frame's convention; the pose is sent as received). A pose older than
+  ``stale_s``, none yet, or one that is not a number sends ``/<slave>/hold``
+  (``std_msgs/msg/Empty``) once, and nothing more until a fresh pose arrives: a lost master
+  makes the slave hold;
+- publishes on
+  ``/<master>/servo_cf`` (``geometry_msgs/msg/WrenchStamped``, frame ``base``) the force
+  :func:`feedback_force_n` makes of the latest ``/<slave>/estimated_cf``: ``-scale F``,
+  clipped to ``max_force_n`` (the driver's own clamp is 2.0 N).
+
+The master driver keeps the last force with no timeout, so "no feedback" is always sent as a
+zero force, never as silence:
 
 - an estimate older than ``stale_s`` (a lost service, a lost link), none yet, or one that is
   not a number gives a zero force on the next tick;
-- on exit (SIGINT, SIGTERM, ``--duration``, an error) a zero force and ``/<master>/free``;
+- on exit (SIGINT, SIGTERM, ``--duration``, an error) a zero force and ``/<master>/free``, and
+  ``/<slave>/hold``;
 - when this process dies any other way (SIGKILL, a crash), its
   :mod:`~master_slave.force_watchdog` child, started before the first command, sends them.
 """
@@ -20,6 +32,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,21 +41,28 @@ from typing import Any, Final
 import numpy as np
 
 from master_slave.force_watchdog import (
+    EMPTY,
+    HOLD,
     SERVO_CF,
     ForceWatchdog,
     ZeroForceSender,
+    encode_empty,
     start_force_watchdog,
 )
 from master_slave.master import FeedbackInbox
-from teleop_force.errors import ConfigurationError, TeleopForceError
+from teleop_force.errors import ConfigurationError, MessageError, TeleopForceError
 from teleop_force.process.lifetime import StopSignal, log, write_json
 from teleop_force.ros2 import interfaces
 from teleop_force.ros2 import topics as ros2_topics
-from teleop_force.ros2.codec import encode_wrench
+from teleop_force.ros2.attachment import Attachment
+from teleop_force.ros2.codec import decode_message, encode_wrench
 from teleop_force.ros2.node import Node
 from teleop_force.transport.session import add_zenoh_arguments, open_session, options_from_args
 
-ROLE: Final = "driver-feedback"
+ROLE: Final = "driver-teleop"
+SERVO_CP: Final = "servo_cp"
+MEASURED_CP: Final = "measured_cp"
+POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
 #: sawSensablePhantom's force clamp (``m_max_force = 2.0``) [N].
 DRIVER_MAX_FORCE_N: Final = 2.0
 
@@ -52,11 +72,14 @@ class FeedbackConfig:
     """Settings of the feedback process.
 
     Attributes:
-        master: The master driver's namespace (its ``servo_cf`` is commanded).
-        slave: The device whose ``estimated_cf`` is fed back.
+        master: The master driver's namespace (its ``measured_cp`` is followed, its
+            ``servo_cf`` commanded).
+        slave: The slave driver's namespace (its ``servo_cp`` is commanded) and the device
+            whose ``estimated_cf`` is fed back.
         scale: Force scaling, 0..1.
         max_force_n: Clip of the commanded force's norm [N].
-        stale_s: An estimate older than this gives a zero force [s].
+        stale_s: An estimate older than this gives a zero force, a master pose older than
+            this makes the slave hold [s].
         rate_hz: Command rate.
         duration_s: Stop after this long (``None``: until SIGINT / SIGTERM).
         watchdog: Start the watchdog child (off only in tests of the process's own exit).
@@ -99,6 +122,62 @@ def feedback_force_n(
     return force
 
 
+class SlaveFollower:
+    """The master's pose forwarded to the slave's ``servo_cp``; ``hold`` when it goes stale."""
+
+    def __init__(self, node: Node, config: FeedbackConfig) -> None:
+        """Subscribe to the master's pose, declare the slave's command publishers."""
+        self.config = config
+        self._lock = threading.Lock()
+        self._pose: bytes | None = None
+        self._arrival_s: float | None = None
+        self.following = False
+        self.forwarded = 0
+        self.holds = 0
+        self.malformed = 0
+        node.subscription(f"/{config.master}/{MEASURED_CP}", POSE_STAMPED, self._on_pose)
+        self._servo_cp = node.publisher(f"/{config.slave}/{SERVO_CP}", POSE_STAMPED)
+        self._hold = node.publisher(f"/{config.slave}/{HOLD}", EMPTY)
+        self._empty = encode_empty()
+
+    def _on_pose(self, payload: bytes, attachment: Attachment) -> None:
+        try:
+            pose = decode_message(payload, POSE_STAMPED).pose
+        except MessageError:
+            pose = None
+        values = () if pose is None else (pose.position.x, pose.position.y, pose.position.z)
+        with self._lock:
+            if pose is None or not all(math.isfinite(v) for v in values):
+                self.malformed += 1  # counted and dropped: the pose goes stale, the slave holds
+                return
+            self._pose, self._arrival_s = bytes(payload), time.perf_counter()
+
+    def tick(self) -> bool:
+        """Forward the latest pose if fresh, else hold once; return whether it follows."""
+        with self._lock:
+            pose, arrival_s = self._pose, self._arrival_s
+        fresh = arrival_s is not None and time.perf_counter() - arrival_s <= self.config.stale_s
+        if fresh and pose is not None:
+            self._servo_cp.publish(pose)
+            self.forwarded += 1
+            self.following = True
+        elif self.following or self.holds == 0:
+            self.hold()
+        return self.following
+
+    def hold(self) -> None:
+        """Send ``hold`` to the slave driver."""
+        self._hold.publish(self._empty)
+        self.holds += 1
+        self.following = False
+
+    def stats(self) -> dict[str, Any]:
+        """Poses forwarded, holds sent, malformed poses dropped."""
+        with self._lock:
+            malformed = self.malformed
+        return {"forwarded": self.forwarded, "holds": self.holds, "malformed": malformed}
+
+
 class DriverFeedback:
     """The subscription, the command publisher, the zero-force sender and the counters."""
 
@@ -135,15 +214,16 @@ class DriverFeedback:
 
 
 def run(config: FeedbackConfig, args: argparse.Namespace, stop: StopSignal) -> dict[str, Any]:
-    """Arm the watchdog, command at ``rate_hz`` until stopped, send zero and free; stats."""
+    """Arm the watchdog, command at ``rate_hz`` until stopped, then zero, free, hold; stats."""
     options = options_from_args(args)
     watchdog: ForceWatchdog | None = None
     if config.watchdog:
-        watchdog = start_force_watchdog(config.master, options.connect)
+        watchdog = start_force_watchdog(config.master, options.connect, hold=(config.slave,))
     try:
         session = open_session(options)
         try:
-            node = Node(session, "teleop_force_driver_feedback")
+            node = Node(session, "teleop_force_driver_teleop")
+            follower = SlaveFollower(node, config)
             feedback = DriverFeedback(node, config)
             try:
                 period_s = 1.0 / config.rate_hz
@@ -151,13 +231,15 @@ def run(config: FeedbackConfig, args: argparse.Namespace, stop: StopSignal) -> d
                 while not stop.is_set():
                     if config.duration_s is not None and next_s - started_s >= config.duration_s:
                         break
+                    follower.tick()
                     feedback.tick()
                     next_s += period_s
                     stop.wait(max(0.0, next_s - time.monotonic()))
             finally:
                 feedback.zero.send()
+                follower.hold()
                 node.close()
-            return feedback.stats()
+            return {"follow": follower.stats(), "feedback": feedback.stats()}
         finally:
             session.close()
     finally:
@@ -166,9 +248,9 @@ def run(config: FeedbackConfig, args: argparse.Namespace, stop: StopSignal) -> d
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Return the parser of ``python -m master_slave.driver_feedback``."""
+    """Return the parser of ``python -m master_slave.driver_teleop``."""
     parser = argparse.ArgumentParser(
-        prog="python -m master_slave.driver_feedback", description=__doc__.splitlines()[0]
+        prog="python -m master_slave.driver_teleop", description=__doc__.splitlines()[0]
     )
     defaults = FeedbackConfig()
     parser.add_argument("--master", default=defaults.master, help="master driver's namespace")
@@ -213,7 +295,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     if args.stats_json:
         write_json(args.stats_json, stats)
-    log(ROLE, f"stopped: {stats['sent']} commands sent, {stats['zeros_sent']} of them zero")
+    feedback, follow = stats["feedback"], stats["follow"]
+    log(
+        ROLE,
+        f"stopped: {follow['forwarded']} poses forwarded, {follow['holds']} holds; "
+        f"{feedback['sent']} forces sent, {feedback['zeros_sent']} of them zero",
+    )
     return 0
 
 
