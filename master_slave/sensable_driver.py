@@ -89,8 +89,12 @@ class SensableDriverNode:
         device: SimulatedSensableDevice,
         *,
         on_frame: FrameCallback | None = None,
+        freeze_gc: bool = False,
     ) -> None:
-        """Declare the node, its three publishers and three subscriptions."""
+        """Declare the node, its three publishers and three subscriptions.
+
+        ``freeze_gc``: freeze the heap when the loop starts (a process; process-wide).
+        """
         self.name = topics.validate_device(name)
         self.device = device
         self._on_frame = on_frame
@@ -114,7 +118,7 @@ class SensableDriverNode:
         except BaseException:
             self.node.close()
             raise
-        self.loop = RateLoop(LoopConfig(rate_hz=DEVICE_RATE_HZ))
+        self.loop = RateLoop(LoopConfig(rate_hz=DEVICE_RATE_HZ, freeze_gc=freeze_gc))
 
     def _topic(self, kind: str) -> str:
         return f"/{self.name}/{kind}"
@@ -236,7 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log(ROLE, f"error: {exc}")
         return 2
     try:
-        driver = SensableDriverNode(session, args.name, device)
+        driver = SensableDriverNode(session, args.name, device, freeze_gc=True)
         try:
             log(ROLE, f"/{args.name}: simulated sawSensablePhantom, 1 kHz device, 500 Hz topics")
             driver.run(stop.is_set, args.duration)

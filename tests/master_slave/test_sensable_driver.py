@@ -251,3 +251,27 @@ def test_servo_cf_of_5_n_is_clamped_to_2_n_kept_without_commands_and_zeroed_by_f
     listener.servo_cf.publish(b"\x00\x01\x00\x00")  # not a WrenchStamped: counted, dropped
     wait_until(lambda: driver.node.malformed == 1, 10.0, "the malformed command")
     assert driver.device.mode is Mode.CP
+
+
+def test_the_driver_declares_its_node_publishers_and_subscriptions_in_the_ros2_graph(live):
+    from teleop_force.ros2 import graph
+
+    driver, listener = live
+    domain = driver.node.node.domain_id
+    replies = listener.node.session.liveliness().get(f"@ros2_lv/{domain}/**", timeout=5.0)
+    entities = [graph.parse_token(str(r.ok.key_expr)) for r in replies if r.ok is not None]
+    ours = {
+        (e.kind, None if e.topic is None else (e.topic.name, e.topic.ros_type))
+        for e in entities
+        if e.node_name == "sensable_phantom"
+    }
+    kinds = graph.EntityKind
+    assert ours == {
+        (kinds.NODE, None),
+        (kinds.PUBLISHER, (f"/{NAME}/measured_js", interfaces.JOINT_STATE)),
+        (kinds.PUBLISHER, (f"/{NAME}/measured_cp", interfaces.POSE_STAMPED)),
+        (kinds.PUBLISHER, (f"/{NAME}/measured_cf", interfaces.WRENCH_STAMPED)),
+        (kinds.SUBSCRIPTION, (f"/{NAME}/servo_cf", interfaces.WRENCH_STAMPED)),
+        (kinds.SUBSCRIPTION, (f"/{NAME}/hold", interfaces.EMPTY)),
+        (kinds.SUBSCRIPTION, (f"/{NAME}/free", interfaces.EMPTY)),
+    }
