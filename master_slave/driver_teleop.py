@@ -41,12 +41,10 @@ from typing import Any, Final
 import numpy as np
 
 from master_slave.force_watchdog import (
-    EMPTY,
     HOLD,
     SERVO_CF,
     ForceWatchdog,
     ZeroForceSender,
-    encode_empty,
     start_force_watchdog,
 )
 from master_slave.master import FeedbackInbox
@@ -55,14 +53,13 @@ from teleop_force.process.lifetime import StopSignal, log, write_json
 from teleop_force.ros2 import interfaces
 from teleop_force.ros2 import topics as ros2_topics
 from teleop_force.ros2.attachment import Attachment
-from teleop_force.ros2.codec import decode_message, encode_wrench
+from teleop_force.ros2.codec import decode_pose, encode_empty, encode_wrench
 from teleop_force.ros2.node import Node
 from teleop_force.transport.session import add_zenoh_arguments, open_session, options_from_args
 
 ROLE: Final = "driver-teleop"
 SERVO_CP: Final = "servo_cp"
 MEASURED_CP: Final = "measured_cp"
-POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
 #: sawSensablePhantom's force clamp (``m_max_force = 2.0``) [N].
 DRIVER_MAX_FORCE_N: Final = 2.0
 
@@ -135,19 +132,18 @@ class SlaveFollower:
         self.forwarded = 0
         self.holds = 0
         self.malformed = 0
-        node.subscription(f"/{config.master}/{MEASURED_CP}", POSE_STAMPED, self._on_pose)
-        self._servo_cp = node.publisher(f"/{config.slave}/{SERVO_CP}", POSE_STAMPED)
-        self._hold = node.publisher(f"/{config.slave}/{HOLD}", EMPTY)
+        node.subscription(f"/{config.master}/{MEASURED_CP}", interfaces.POSE_STAMPED, self._on_pose)
+        self._servo_cp = node.publisher(f"/{config.slave}/{SERVO_CP}", interfaces.POSE_STAMPED)
+        self._hold = node.publisher(f"/{config.slave}/{HOLD}", interfaces.EMPTY)
         self._empty = encode_empty()
 
     def _on_pose(self, payload: bytes, attachment: Attachment) -> None:
         try:
-            pose = decode_message(payload, POSE_STAMPED).pose
+            position_m = decode_pose(payload).position_m
         except MessageError:
-            pose = None
-        values = () if pose is None else (pose.position.x, pose.position.y, pose.position.z)
+            position_m = (math.nan, math.nan, math.nan)
         with self._lock:
-            if pose is None or not all(math.isfinite(v) for v in values):
+            if not all(math.isfinite(v) for v in position_m):
                 self.malformed += 1  # counted and dropped: the pose goes stale, the slave holds
                 return
             self._pose, self._arrival_s = bytes(payload), time.perf_counter()

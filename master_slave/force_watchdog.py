@@ -31,7 +31,7 @@ from teleop_force.errors import TeleopForceError, TransportError
 from teleop_force.process.lifetime import log
 from teleop_force.ros2 import interfaces
 from teleop_force.ros2 import topics as ros2_topics
-from teleop_force.ros2.codec import encode_wrench
+from teleop_force.ros2.codec import encode_empty, encode_wrench
 from teleop_force.ros2.node import Node
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -45,18 +45,10 @@ ROLE: Final = "force-watchdog"
 SERVO_CF: Final = "servo_cf"
 FREE: Final = "free"
 HOLD: Final = "hold"
-EMPTY: Final = "std_msgs/msg/Empty"
 #: How many times the zero force and ``free`` are sent, and how far apart [s].
 REPEATS: Final = 5
 REPEAT_PERIOD_S: Final = 0.02
 READY_LINE: Final = b"ready\n"
-
-
-def encode_empty() -> bytes:
-    """CDR of a ``std_msgs/msg/Empty``."""
-    store = interfaces.typestore()
-    message = store.types[EMPTY](structure_needs_at_least_one_member=0)
-    return bytes(store.serialize_cdr(message, EMPTY))
 
 
 class ZeroForceSender:
@@ -66,7 +58,7 @@ class ZeroForceSender:
         """Declare the two publishers on ``node`` for driver ``device``."""
         self.device = ros2_topics.validate_device(device)
         self._servo_cf = node.publisher(f"/{self.device}/{SERVO_CF}", interfaces.WRENCH_STAMPED)
-        self._free = node.publisher(f"/{self.device}/{FREE}", EMPTY)
+        self._free = node.publisher(f"/{self.device}/{FREE}", interfaces.EMPTY)
         self._empty = encode_empty()
 
     def send(self, repeats: int = REPEATS, period_s: float = REPEAT_PERIOD_S) -> None:
@@ -157,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sender = ZeroForceSender(node, args.device)
         empty = encode_empty()
         holds = [
-            node.publisher(f"/{ros2_topics.validate_device(name)}/{HOLD}", EMPTY)
+            node.publisher(f"/{ros2_topics.validate_device(name)}/{HOLD}", interfaces.EMPTY)
             for name in args.hold
         ]
         os.write(sys.stdout.fileno(), READY_LINE)

@@ -26,6 +26,8 @@ by jhu-cisst/cisst-ros ``cisst_ros_crtk/src/mts_ros_crtk_bridge_provided.cpp``):
     /<name>/servo_cf     geometry_msgs/msg/WrenchStamped: the force [N] (torque ignored); its
                          norm is clamped to 2 N (m_max_force), applied as tau = J(q)^T F and
                          kept, with no timeout, until the next command
+    /<name>/servo_cp     geometry_msgs/msg/PoseStamped: the translation [m] (orientation
+                         ignored) the driver's Cartesian PD tracks, as hold below
     /<name>/hold         std_msgs/msg/Empty: servo_cp to the position measured then: the
                          driver's Cartesian PD, F = -100 N/m (p - p_hold) - 3 N s/m v, clamped
     /<name>/free         std_msgs/msg/Empty: servo_cf of a zero force
@@ -113,6 +115,9 @@ class SensableDriverNode:
             self.node.subscription(
                 self._topic("servo_cf"), interfaces.WRENCH_STAMPED, self._on_servo_cf
             )
+            self.node.subscription(
+                self._topic("servo_cp"), interfaces.POSE_STAMPED, self._on_servo_cp
+            )
             self.node.subscription(self._topic("hold"), interfaces.EMPTY, self._on_hold)
             self.node.subscription(self._topic("free"), interfaces.EMPTY, self._on_free)
         except BaseException:
@@ -136,6 +141,12 @@ class SensableDriverNode:
             self.device.servo_cf(wrench.force_n)
         except (MessageError, DataError) as exc:
             self._count_malformed("servo_cf", exc)
+
+    def _on_servo_cp(self, payload: bytes, attachment: Attachment) -> None:
+        try:
+            self.device.servo_cp(codec.decode_pose(payload).position_m)
+        except (MessageError, DataError) as exc:
+            self._count_malformed("servo_cp", exc)
 
     def _on_hold(self, payload: bytes, attachment: Attachment) -> None:
         try:

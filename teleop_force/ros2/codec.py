@@ -81,11 +81,6 @@ def _deserialize(payload: bytes | bytearray | memoryview, ros_type: str) -> Any:
     return message
 
 
-def decode_message(payload: bytes | bytearray | memoryview, ros_type: str) -> Any:
-    """Decode a message of any type of the typestore; raise MessageError if it does not."""
-    return _deserialize(payload, ros_type)
-
-
 def _names(names: Sequence[str], n: int) -> list[str]:
     result = [str(x) for x in names]
     if result and len(result) != n:  # none (ROS allows it) or one per joint

@@ -152,7 +152,7 @@ def driver_joint_state(
 class SimulatedSensableDevice:
     """The driver's device loop over ``plant`` (module docstring); one :meth:`frame` a tick.
 
-    Commands (:meth:`servo_cf`, :meth:`hold`, :meth:`free`) may come from any thread; they
+    Commands (:meth:`servo_cf`, :meth:`servo_cp`, :meth:`hold`, :meth:`free`) may come from any thread; they
     are queued and take effect at the end of the frame, as ``ProcessQueuedCommands`` does.
     """
 
@@ -175,7 +175,7 @@ class SimulatedSensableDevice:
         self._queue: list[tuple[Mode, np.ndarray | None]] = []
         self._lock = threading.Lock()
         #: Commands received, by kind (``servo_cf``, ``hold``, ``free``).
-        self.commands = {"servo_cf": 0, "hold": 0, "free": 0}
+        self.commands = {"servo_cf": 0, "servo_cp": 0, "hold": 0, "free": 0}
 
     # -- commands (any thread) -----------------------------------------------------------------
 
@@ -192,6 +192,20 @@ class SimulatedSensableDevice:
         with self._lock:
             self._queue.append((Mode.CF, force.copy()))
             self.commands["servo_cf"] += 1
+
+    def servo_cp(self, position_in_base_m: np.ndarray | tuple[float, float, float]) -> None:
+        """Queue ``servo_cp``: the driver's Cartesian PD toward this tip position [m].
+
+        Raises:
+            DataError: a position that is not 3 finite numbers (nothing is queued).
+
+        """
+        position = np.asarray(position_in_base_m, dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise DataError(f"servo_cp needs 3 finite position components, got {position}")
+        with self._lock:
+            self._queue.append((Mode.CP, position.copy()))
+            self.commands["servo_cp"] += 1
 
     def hold(self) -> None:
         """Queue ``hold``: servo_cp to the position measured in the frame it is processed in."""
@@ -254,5 +268,5 @@ class SimulatedSensableDevice:
             self.mode = mode
             if mode is Mode.CF and force is not None:
                 self.servo_cf_n = force
-            elif mode is Mode.CP:
-                self.hold_position_m = self._tip.copy()
+            elif mode is Mode.CP:  # hold: the position now; servo_cp: the one given
+                self.hold_position_m = self._tip.copy() if force is None else force

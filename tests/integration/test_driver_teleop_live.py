@@ -22,24 +22,12 @@ from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node
 
 _ESTIMATE_N = (1.0, -2.0, 0.5)
-_POSE = "geometry_msgs/msg/PoseStamped"
+_POSE = interfaces.POSE_STAMPED
 _MASTER_POSITION_M = (0.01, -0.02, 0.03)
 
 
 def _pose_payload(position_m: tuple[float, ...]) -> bytes:
-    store = interfaces.typestore()
-    t = store.types
-    sec, nanosec = divmod(time.time_ns(), 1_000_000_000)
-    pose = t[_POSE](
-        header=t["std_msgs/msg/Header"](
-            stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="base"
-        ),
-        pose=t["geometry_msgs/msg/Pose"](
-            position=t["geometry_msgs/msg/Point"](*position_m),
-            orientation=t["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
-        ),
-    )
-    return bytes(store.serialize_cdr(pose, _POSE))
+    return codec.encode_pose(time.time_ns(), position_m, topics.BASE_FRAME)
 
 
 class KeepsLastForce:
@@ -58,9 +46,9 @@ class KeepsLastForce:
         node.subscription("/slave/hold", "std_msgs/msg/Empty", self._on_hold)
 
     def _on_servo_cp(self, payload: bytes, attachment: Attachment) -> None:
-        p = codec.decode_message(payload, _POSE).pose.position
+        position_m = codec.decode_pose(payload).position_m
         with self._lock:
-            self.slave_position_m = (p.x, p.y, p.z)
+            self.slave_position_m = position_m
 
     def _on_hold(self, payload: bytes, attachment: Attachment) -> None:
         with self._lock:

@@ -10,9 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from master_slave.driver_teleop import FeedbackConfig, feedback_force_n
-from master_slave.force_watchdog import EMPTY, encode_empty
 from teleop_force.errors import ConfigurationError
-from teleop_force.ros2 import interfaces
 
 _CONFIG = FeedbackConfig(scale=0.5, max_force_n=2.0, stale_s=0.05)
 _FORCE = st.lists(st.floats(-50.0, 50.0), min_size=3, max_size=3).map(np.array)
@@ -50,9 +48,3 @@ def test_estimate_not_a_number_commands_zero(bad: float) -> None:
 def test_config_refuses_bad_values(kwargs: dict) -> None:
     with pytest.raises(ConfigurationError):
         FeedbackConfig(**kwargs)
-
-
-def test_free_is_an_empty_message() -> None:
-    store = interfaces.typestore()
-    decoded = store.deserialize_cdr(encode_empty(), EMPTY)
-    assert decoded.structure_needs_at_least_one_member == 0

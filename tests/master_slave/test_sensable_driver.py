@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from master_slave.sensable_driver import SensableDriverNode, build_plant
+from teleop_force.errors import DataError
 from teleop_force.robots.registry import builtin_driver
 from teleop_force.ros2 import codec, interfaces
 from teleop_force.ros2.node import Node
@@ -238,19 +240,44 @@ def test_servo_cf_of_5_n_is_clamped_to_2_n_kept_without_commands_and_zeroed_by_f
     driver, listener = live
     listener.servo_cf.publish(codec.encode_wrench(time.time_ns(), (0.0, 3.0, 4.0), "base"))
     wait_until(lambda: driver.device.commands["servo_cf"] == 1, 10.0, "the command")
+    # measured_cf shows it from the frame after the command was processed, 2 ms later
+    wait_until(lambda: listener.latest_force().any(), 10.0, "the force on measured_cf")
     force = listener.latest_force()
     assert np.allclose(force, (0.0, 1.2, 1.6), atol=1e-12)  # norm 5 -> 2, same direction
     time.sleep(0.5)  # no command for 250 messages: no timeout
     assert np.allclose(listener.latest_force(), (0.0, 1.2, 1.6), atol=1e-12)
     listener.free.publish(codec.encode_empty())
     wait_until(lambda: driver.device.commands["free"] == 1, 10.0, "free")
-    time.sleep(0.05)
-    assert np.array_equal(listener.latest_force(), (0.0, 0.0, 0.0))
+    wait_until(lambda: not listener.latest_force().any(), 10.0, "zero force after free")
     listener.hold.publish(codec.encode_empty())
     wait_until(lambda: driver.device.mode is Mode.CP, 10.0, "hold")
     listener.servo_cf.publish(b"\x00\x01\x00\x00")  # not a WrenchStamped: counted, dropped
     wait_until(lambda: driver.node.malformed == 1, 10.0, "the malformed command")
     assert driver.device.mode is Mode.CP
+
+
+def test_servo_cp_tracks_the_position_given_with_the_drivers_pd():
+    device = SimulatedSensableDevice(build_plant())
+    frames(device, 200)
+    device.hold()
+    device.frame()
+    held_m = device.hold_position_m.copy()
+    rest_held = np.array(frames(device, 1500)[-1].tip_in_base_m)  # the PD's rest, with its sag
+    step_m = np.array([0.0, 0.01, 0.0])  # 1 cm up
+    device.servo_cp(tuple(held_m + step_m))
+    device.frame()
+    np.testing.assert_array_equal(device.hold_position_m, held_m + step_m)
+    tracked = frames(device, 1500)
+    assert all(f.mode is Mode.CP for f in tracked)
+    moved_m = np.array(tracked[-1].tip_in_base_m) - rest_held
+    # it moves toward the target, until the joints' static friction holds it against the PD
+    assert moved_m[1] > 0.3 * step_m[1] and np.all(np.abs(moved_m[[0, 2]]) < moved_m[1])
+    last = tracked[-1]
+    error_m = np.array(last.tip_in_base_m) - (held_m + step_m)
+    gain = device.settings.servo_cp_p_gain_n_per_m  # at rest, the force is the P term alone
+    np.testing.assert_allclose(last.force_in_base_n, -gain * error_m, atol=0.02)
+    with pytest.raises(DataError):
+        device.servo_cp((0.0, math.nan, 0.0))
 
 
 def test_the_driver_declares_its_node_publishers_and_subscriptions_in_the_ros2_graph(live):
@@ -272,6 +299,7 @@ def test_the_driver_declares_its_node_publishers_and_subscriptions_in_the_ros2_g
         (kinds.PUBLISHER, (f"/{NAME}/measured_cp", interfaces.POSE_STAMPED)),
         (kinds.PUBLISHER, (f"/{NAME}/measured_cf", interfaces.WRENCH_STAMPED)),
         (kinds.SUBSCRIPTION, (f"/{NAME}/servo_cf", interfaces.WRENCH_STAMPED)),
+        (kinds.SUBSCRIPTION, (f"/{NAME}/servo_cp", interfaces.POSE_STAMPED)),
         (kinds.SUBSCRIPTION, (f"/{NAME}/hold", interfaces.EMPTY)),
         (kinds.SUBSCRIPTION, (f"/{NAME}/free", interfaces.EMPTY)),
     }
