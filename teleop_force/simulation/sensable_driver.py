@@ -152,8 +152,9 @@ def driver_joint_state(
 class SimulatedSensableDevice:
     """The driver's device loop over ``plant`` (module docstring); one :meth:`frame` a tick.
 
-    Commands (:meth:`servo_cf`, :meth:`servo_cp`, :meth:`hold`, :meth:`free`) may come from any thread; they
-    are queued and take effect at the end of the frame, as ``ProcessQueuedCommands`` does.
+    Commands (:meth:`servo_cf`, :meth:`servo_cp`, :meth:`hold`, :meth:`free`) may come from
+    any thread; they are queued and take effect at the end of the frame, as
+    ``ProcessQueuedCommands`` does.
     """
 
     def __init__(
