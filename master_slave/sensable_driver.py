@@ -50,6 +50,7 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any, Final
 
+import numpy as np
 import zenoh
 
 from master_slave.realtime import LoopConfig, RateLoop
@@ -205,11 +206,17 @@ class SensableDriverNode:
         self.node.close()
 
 
-def build_plant(seed: int = 0, surface_y_m: float | None = None) -> SimulatedOmni:
-    """Return the simulated Omni at mid-range, 1 kHz ticks; a tissue plane at ``surface_y_m``."""
+def build_plant(
+    seed: int = 0, surface_y_m: float | None = None, q0_rad: Sequence[float] | None = None
+) -> SimulatedOmni:
+    """Return the simulated Omni (1 kHz ticks) at ``q0_rad``, default mid-range.
+
+    A tissue plane at ``surface_y_m`` if given.
+    """
     contact = None if surface_y_m is None else PlaneContact.horizontal(surface_y_m)
-    return SimulatedOmni(PlantConfig(control_period_s=1.0 / DEVICE_RATE_HZ), seed=seed,
-                         contact=contact)  # fmt: skip
+    q0 = None if q0_rad is None else np.asarray(q0_rad, dtype=float)
+    config = PlantConfig(control_period_s=1.0 / DEVICE_RATE_HZ)
+    return SimulatedOmni(config, seed=seed, contact=contact, q0_rad=q0)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -223,6 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--surface-y", type=float, default=None, metavar="M",
         help="a tissue plane at this height [m] (default: free space)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--q0-rad", type=float, nargs=3, default=None, metavar=("Q1", "Q2", "Q3"),
+        help="the arm's starting angles in the model's coordinates (default: mid-range)",
     )  # fmt: skip
     parser.add_argument(
         "--max-force", type=float, default=2.0, metavar="N",
@@ -244,7 +255,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.duration is not None and not args.duration > 0:
             raise ConfigurationError(f"--duration must be > 0, got {args.duration}")
         device = SimulatedSensableDevice(
-            build_plant(args.seed, args.surface_y), SensableSettings(max_force_n=args.max_force)
+            build_plant(args.seed, args.surface_y, args.q0_rad),
+            SensableSettings(max_force_n=args.max_force),
         )
         session = open_session(options_from_args(args))
     except TeleopForceError as exc:
