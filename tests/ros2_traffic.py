@@ -13,6 +13,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from teleop_force.errors import MessageError
@@ -90,3 +91,12 @@ class Collector:
 
     def close(self) -> None:
         self.node.close()
+
+
+def joint_states_500hz(n: int, t0_ns: int = 1_764_158_400_000_000_000) -> list[m.JointState]:
+    """A smooth joint-state stream at the Omni driver's 500 Hz (model coordinates)."""
+    t = np.arange(n) * 2e-3
+    q = np.column_stack([0.2 * np.sin(2 * t), 0.8 + 0.3 * np.sin(3 * t), 0.3 + 0.2 * t])
+    tau = np.column_stack([0.02 * np.sin(5 * t), 0.15 + 0.01 * t, 0.05 + 0.01 * np.sin(7 * t)])
+    return [m.JointState(k + 1, t0_ns + k * 2_000_000, tuple(q[k]), (0.0,) * 3, tuple(tau[k]))
+            for k in range(n)]  # fmt: skip

@@ -127,8 +127,8 @@ def _decode_js(payload: bytes) -> tuple[int, RawJointState]:
 def _decode_cp(payload: bytes) -> tuple[int, np.ndarray]:
     from teleop_force.ros2 import codec
 
-    t_ns, position_m, _, _ = codec.decode_pose_stamped(payload)
-    return t_ns, np.asarray(position_m, dtype=float)
+    pose = codec.decode_pose(payload)
+    return pose.t_ns, np.asarray(pose.position_m, dtype=float)
 
 
 def _decode_cf(payload: bytes) -> tuple[int, np.ndarray]:

@@ -41,6 +41,7 @@ _POINT: Final = _T["geometry_msgs/msg/Point"]
 _QUATERNION: Final = _T["geometry_msgs/msg/Quaternion"]
 _POSE: Final = _T["geometry_msgs/msg/Pose"]
 _POSE_STAMPED: Final = _T[i.POSE_STAMPED]
+_EMPTY_MSG: Final = _T[i.EMPTY]
 _ESTIMATE_DIAGNOSTICS: Final = _T[i.ESTIMATE_DIAGNOSTICS]
 _STATUS: Final = _T[i.STATUS]
 _SERVICE_DIAGNOSTICS: Final = _T[i.SERVICE_DIAGNOSTICS]
@@ -228,10 +229,23 @@ def decode_contact_force(payload: bytes | bytearray | memoryview, seq: int) -> m
 # --------------------------------------------------------------------------- poses
 
 
-def encode_pose_stamped(
-    t_ns: int, position_m: Sequence[float], orientation_xyzw: Sequence[float], frame_id: str
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A decoded PoseStamped: stamp [ns], frame, position [m], orientation (x, y, z, w)."""
+
+    t_ns: int
+    frame_id: str
+    position_m: tuple[float, float, float]
+    orientation_xyzw: tuple[float, float, float, float]
+
+
+def encode_pose(
+    t_ns: int,
+    position_m: Sequence[float],
+    frame_id: str,
+    orientation_xyzw: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
 ) -> bytes:
-    """Return ``geometry_msgs/msg/PoseStamped``: position [m], orientation quaternion (x y z w)."""
+    """Return ``geometry_msgs/msg/PoseStamped`` (default orientation: identity)."""
     px, py, pz = (float(v) for v in position_m)
     qx, qy, qz, qw = (float(v) for v in orientation_xyzw)
     return _serialize(
@@ -244,18 +258,24 @@ def encode_pose_stamped(
     )  # fmt: skip
 
 
-def decode_pose_stamped(
-    payload: bytes | bytearray | memoryview,
-) -> tuple[int, tuple[float, float, float], tuple[float, float, float, float], str]:
-    """Parse a PoseStamped: ``(t_ns, position_m, orientation_xyzw, frame_id)`` (any numbers)."""
+def decode_pose(payload: bytes | bytearray | memoryview) -> Pose:
+    """Parse a PoseStamped (any numbers; the caller decides what is allowed)."""
     d = _deserialize(payload, i.POSE_STAMPED)
     p, o = d.pose.position, d.pose.orientation
-    return (
-        _stamp_ns(d.header),
-        (float(p.x), float(p.y), float(p.z)),
-        (float(o.x), float(o.y), float(o.z), float(o.w)),
-        d.header.frame_id,
-    )
+    return Pose(_stamp_ns(d.header), d.header.frame_id, (p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
+
+
+# --------------------------------------------------------------------------- empty
+
+
+def encode_empty() -> bytes:
+    """Return ``std_msgs/msg/Empty`` (its one placeholder byte, as every ROS 2 type has)."""
+    return _serialize(_EMPTY_MSG(structure_needs_at_least_one_member=0), i.EMPTY)
+
+
+def decode_empty(payload: bytes | bytearray | memoryview) -> None:
+    """Check that ``payload`` is a ``std_msgs/msg/Empty``; raise MessageError if not."""
+    _deserialize(payload, i.EMPTY)
 
 
 # --------------------------------------------------------------------------- estimate
@@ -455,6 +475,8 @@ def warm_up() -> None:
     decode_joint_state(encode_joint_state(js, names), 0)
     decode_joint_setpoint(encode_joint_setpoint(m.JointSetpoint(0, t_ns, (0.0,)), names), 0)
     decode_contact_force(encode_contact_force(m.ContactForce(0, t_ns, (0.0, 0.0, 0.0)), ""), 0)
+    decode_pose(encode_pose(t_ns, (0.0, 0.0, 0.0), ""))
+    decode_empty(encode_empty())
     estimate = m.ForceEstimateMessage(0, t_ns, 0, (0.0, 0.0, 0.0), (0.0,), (True,), (1.0,),
                                       (0.0,), (0.0,))  # fmt: skip
     wrench, diagnostics = encode_estimate(estimate, names, "")

@@ -26,7 +26,10 @@ INTERFACE_DIR: Final = Path(__file__).resolve().parent / "interfaces" / INTERFAC
 
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED: Final = "geometry_msgs/msg/WrenchStamped"
+#: The Omni driver's ``measured_cp`` (sawSensablePhantom; the simulated driver publishes it).
 POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
+#: The CRTK bridge's void commands (``hold``, ``free``): cisst-ros' ``mtsROSSubscriberVoid``.
+EMPTY: Final = "std_msgs/msg/Empty"
 ESTIMATE_DIAGNOSTICS: Final = f"{INTERFACE_PACKAGE}/msg/EstimateDiagnostics"
 STATUS: Final = f"{INTERFACE_PACKAGE}/msg/Status"
 SERVICE_DIAGNOSTICS: Final = f"{INTERFACE_PACKAGE}/msg/ServiceDiagnostics"

@@ -89,11 +89,7 @@ class FakeDriver:
             names, position, effort = self.truth.to_driver(q, tau_nm)
             assert effort is not None
             self.js.publish(codec.encode_joint_state_parts(t_ns, names, "", position, (), effort))
-            self.cp.publish(
-                codec.encode_pose_stamped(
-                    t_ns, tip_position_formula(q) + ORIGIN_M, (0.0, 0.0, 0.0, 1.0), "base"
-                )
-            )
+            self.cp.publish(codec.encode_pose(t_ns, tip_position_formula(q) + ORIGIN_M, "base"))
             self.cf.publish(codec.encode_wrench(t_ns, force, "base"))
             k += 1
             self._stop.wait(max(0.0, start + k * PERIOD_S - time.monotonic()))
@@ -216,10 +212,3 @@ def test_a_wrong_effort_unit_is_named(
 def test_a_probe_force_above_one_newton_is_refused(endpoint: str, capsys) -> None:
     assert check_driver(endpoint, "--probe-force-n", "1.5") == 2
     assert "--probe-force-n must be > 0 and at most 1 N" in capsys.readouterr().err
-
-
-def test_pose_stamped_round_trips() -> None:
-    payload = codec.encode_pose_stamped(T0_NS + 7, (0.1, -0.2, 0.3), (0.0, 0.6, 0.0, 0.8), "base")
-    assert codec.decode_pose_stamped(payload) == (
-        T0_NS + 7, (0.1, -0.2, 0.3), (0.0, 0.6, 0.0, 0.8), "base"
-    )  # fmt: skip

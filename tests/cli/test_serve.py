@@ -12,7 +12,6 @@ from teleop_force.identification.dynamic_model import DynamicModel
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.ros2 import topics
 from teleop_force.transport import keys
-from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import query_json
 from teleop_force.transport.session import (
     ZenohOptions,
@@ -21,19 +20,11 @@ from teleop_force.transport.session import (
     open_session,
 )
 from tests.integration.teleop_helpers import STARTUP_TIMEOUT_S, python_module, spawn, stop, wait_for
-from tests.ros2_traffic import Collector, JointStatePublisher
+from tests.ros2_traffic import Collector, JointStatePublisher, joint_states_500hz
 
 pytestmark = pytest.mark.zenoh
 DEVICE = "lab_slave"
 DOMAIN = 7
-
-
-def joint_states(n: int, t0_ns: int = 1_764_158_400_000_000_000) -> list[m.JointState]:
-    t = np.arange(n) * 2e-3  # the Omni driver's 500 Hz
-    q = np.column_stack([0.2 * np.sin(2 * t), 0.8 + 0.3 * np.sin(3 * t), 0.3 + 0.2 * t])
-    tau = np.column_stack([0.02 * np.sin(5 * t), 0.15 + 0.0 * t, 0.05 + 0.01 * np.sin(7 * t)])
-    return [m.JointState(k + 1, t0_ns + k * 2_000_000, tuple(q[k]), (0.0,) * 3, tuple(tau[k]))
-            for k in range(n)]  # fmt: skip
 
 
 def test_serve_estimates_on_a_live_device_and_says_when_it_falls_silent(tmp_path, monkeypatch):
@@ -58,7 +49,7 @@ def test_serve_estimates_on_a_live_device_and_says_when_it_falls_silent(tmp_path
         wait_for(lambda: driver.publisher.zenoh_publisher.matching_status.matching, 30.0,
                  "the service's subscription")  # fmt: skip
         time.sleep(0.2)
-        stream = joint_states(300)
+        stream = joint_states_500hz(300)
         for js in stream:
             driver.send(js)
         wait_for(lambda: len(estimates) == len(stream), 30.0, "the estimates")

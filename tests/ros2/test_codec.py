@@ -187,3 +187,21 @@ def test_unknown_status_state_raises():
     payload[16] = 9  # the state byte, after encapsulation (4) and header (stamp 8, frame 4)
     with pytest.raises(MessageError):
         codec.decode_status(bytes(payload), seq=1)
+
+
+def test_pose_stamped_and_empty_round_trip_as_rosbags_reads_them():
+    from teleop_force.ros2 import interfaces
+
+    store = interfaces.typestore()
+    payload = codec.encode_pose(1_500_000_123, (0.1, -0.02, 0.3), "base")
+    raw = store.deserialize_cdr(payload, interfaces.POSE_STAMPED)
+    assert (raw.header.stamp.sec, raw.header.stamp.nanosec) == (1, 500_000_123)
+    assert (raw.pose.position.x, raw.pose.position.y, raw.pose.position.z) == (0.1, -0.02, 0.3)
+    pose = codec.decode_pose(payload)
+    assert pose.frame_id == "base" and pose.orientation_xyzw == (0.0, 0.0, 0.0, 1.0)
+    assert pose.position_m == (0.1, -0.02, 0.3) and pose.t_ns == 1_500_000_123
+    empty = codec.encode_empty()
+    assert store.deserialize_cdr(empty, interfaces.EMPTY).structure_needs_at_least_one_member == 0
+    codec.decode_empty(empty)
+    with pytest.raises(MessageError):
+        codec.decode_empty(b"\x00\x01")
