@@ -42,7 +42,6 @@ import numpy as np
 
 from master_slave.force_watchdog import (
     HOLD,
-    SERVO_CF,
     ForceWatchdog,
     ZeroForceSender,
     start_force_watchdog,
@@ -188,15 +187,14 @@ class DriverFeedback:
             ros2_topics.ESTIMATED_CF.ros_type,
             self.inbox.on_sample,
         )
-        self._servo_cf = node.publisher(f"/{config.master}/{SERVO_CF}", interfaces.WRENCH_STAMPED)
-        self.zero = ZeroForceSender(node, config.master)
+        self.zero = ZeroForceSender(node, config.master)  # its servo_cf publisher is ours too
 
     def tick(self) -> np.ndarray:
         """Command the force of the latest estimate (zero if none is fresh); return it."""
         estimate_n, arrival_s = self.inbox.latest()
         age_s = None if arrival_s is None else time.perf_counter() - arrival_s
         force = feedback_force_n(estimate_n, age_s, self.config)
-        self._servo_cf.publish(
+        self.zero.servo_cf.publish(
             encode_wrench(time.time_ns(), force.tolist(), ros2_topics.BASE_FRAME)
         )
         self.sent += 1

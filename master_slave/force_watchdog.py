@@ -57,7 +57,8 @@ class ZeroForceSender:
     def __init__(self, node: Node, device: str) -> None:
         """Declare the two publishers on ``node`` for driver ``device``."""
         self.device = ros2_topics.validate_device(device)
-        self._servo_cf = node.publisher(f"/{self.device}/{SERVO_CF}", interfaces.WRENCH_STAMPED)
+        #: The driver's ``servo_cf`` publisher (a process commanding forces shares it).
+        self.servo_cf = node.publisher(f"/{self.device}/{SERVO_CF}", interfaces.WRENCH_STAMPED)
         self._free = node.publisher(f"/{self.device}/{FREE}", interfaces.EMPTY)
         self._empty = encode_empty()
 
@@ -65,7 +66,7 @@ class ZeroForceSender:
         """Publish a zero force then ``free``, ``repeats`` times."""
         for i in range(repeats):
             zero = encode_wrench(time.time_ns(), (0.0, 0.0, 0.0), ros2_topics.BASE_FRAME)
-            self._servo_cf.publish(zero)
+            self.servo_cf.publish(zero)
             self._free.publish(self._empty)
             if i + 1 < repeats:
                 time.sleep(period_s)

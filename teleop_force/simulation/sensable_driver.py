@@ -126,6 +126,16 @@ def _vec3(values: np.ndarray) -> tuple[float, float, float]:
     return x, y, z
 
 
+def _finite3(
+    values: np.ndarray | tuple[float, float, float], command: str, what: str
+) -> np.ndarray:
+    """Return ``values`` as 3 finite floats (a copy); DataError naming ``command`` if not."""
+    vector = np.array(values, dtype=float)
+    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+        raise DataError(f"{command} needs 3 finite {what} components, got {values}")
+    return vector
+
+
 def clamp_force(force_n: np.ndarray, max_force_n: float) -> np.ndarray:
     """Scale ``force_n`` down to norm ``max_force_n`` if longer ([cpp] 353-356)."""
     norm = float(np.linalg.norm(force_n))
@@ -175,7 +185,7 @@ class SimulatedSensableDevice:
         self._tip = np.zeros(3)
         self._queue: list[tuple[Mode, np.ndarray | None]] = []
         self._lock = threading.Lock()
-        #: Commands received, by kind (``servo_cf``, ``hold``, ``free``).
+        #: Commands received, by kind (``servo_cf``, ``servo_cp``, ``hold``, ``free``).
         self.commands = {"servo_cf": 0, "servo_cp": 0, "hold": 0, "free": 0}
 
     # -- commands (any thread) -----------------------------------------------------------------
@@ -187,12 +197,7 @@ class SimulatedSensableDevice:
             DataError: a force that is not 3 finite numbers (nothing is queued).
 
         """
-        force = np.asarray(force_in_base_n, dtype=float)
-        if force.shape != (3,) or not np.all(np.isfinite(force)):
-            raise DataError(f"servo_cf needs 3 finite force components, got {force_in_base_n}")
-        with self._lock:
-            self._queue.append((Mode.CF, force.copy()))
-            self.commands["servo_cf"] += 1
+        self._command("servo_cf", Mode.CF, _finite3(force_in_base_n, "servo_cf", "force"))
 
     def servo_cp(self, position_in_base_m: np.ndarray | tuple[float, float, float]) -> None:
         """Queue ``servo_cp``: the driver's Cartesian PD toward this tip position [m].
@@ -201,24 +206,20 @@ class SimulatedSensableDevice:
             DataError: a position that is not 3 finite numbers (nothing is queued).
 
         """
-        position = np.asarray(position_in_base_m, dtype=float)
-        if position.shape != (3,) or not np.all(np.isfinite(position)):
-            raise DataError(f"servo_cp needs 3 finite position components, got {position}")
-        with self._lock:
-            self._queue.append((Mode.CP, position.copy()))
-            self.commands["servo_cp"] += 1
+        self._command("servo_cp", Mode.CP, _finite3(position_in_base_m, "servo_cp", "position"))
 
     def hold(self) -> None:
         """Queue ``hold``: servo_cp to the position measured in the frame it is processed in."""
-        with self._lock:
-            self._queue.append((Mode.CP, None))
-            self.commands["hold"] += 1
+        self._command("hold", Mode.CP, None)
 
     def free(self) -> None:
         """Queue ``free``: servo_cf with a zero force (``use_gravity_compensation`` is a no-op)."""
+        self._command("free", Mode.CF, np.zeros(3))
+
+    def _command(self, kind: str, mode: Mode, value: np.ndarray | None) -> None:
         with self._lock:
-            self._queue.append((Mode.CF, np.zeros(3)))
-            self.commands["free"] += 1
+            self._queue.append((mode, value))
+            self.commands[kind] += 1
 
     # -- the frame -----------------------------------------------------------------------------
 
@@ -265,9 +266,9 @@ class SimulatedSensableDevice:
     def _process_queued_commands(self) -> None:
         with self._lock:
             queue, self._queue = self._queue, []
-        for mode, force in queue:
+        for mode, value in queue:
             self.mode = mode
-            if mode is Mode.CF and force is not None:
-                self.servo_cf_n = force
+            if mode is Mode.CF and value is not None:
+                self.servo_cf_n = value
             elif mode is Mode.CP:  # hold: the position now; servo_cp: the one given
-                self.hold_position_m = self._tip.copy() if force is None else force
+                self.hold_position_m = self._tip.copy() if value is None else value
