@@ -6,9 +6,12 @@ payloads, as in the demo) on loopback; a session recorder
 alternating rounds. Each run's CPU is read from ``/proc`` per thread over ``--measure-s``
 after a settling time; the publisher always runs the project's default layout::
 
-    uv run python benchmarks/zenoh_threads.py [--rounds 2] [--measure-s 8]
+    uv run python benchmarks/zenoh_threads.py [--rounds 2] [--measure-s 8] [--batching]
 
 Prints one JSON line per run: the layout, the recorder's CPU in % of one core, by thread name.
+``--batching`` instead compares, under the project's layout, a publisher whose six messages
+of a tick are all express with one whose tick's last message alone is express (the
+project's publishers: the others wait in Zenoh's batch and leave with it).
 """
 
 from __future__ import annotations
@@ -34,8 +37,11 @@ _TOPICS = 6
 _HZ = 1000.0
 
 
-def publish(port: int, seconds: float) -> None:
-    """Publish ``_TOPICS`` topics at ``_HZ`` for ``seconds`` (run in a child process)."""
+def publish(port: int, seconds: float, batched: bool = False) -> None:
+    """Publish ``_TOPICS`` topics at ``_HZ`` for ``seconds`` (run in a child process).
+
+    ``batched``: only each tick's last message is express.
+    """
     from teleop_force.transport.session import ZenohOptions, open_session
 
     session = open_session(
@@ -47,7 +53,7 @@ def publish(port: int, seconds: float) -> None:
         session.declare_publisher(
             f"0/bench/topic{i}/sensor_msgs::msg::dds_::JointState_/RIHS01_{'0' * 64}",
             congestion_control=zenoh.CongestionControl.BLOCK,
-            express=True,
+            express=not batched or i == _TOPICS - 1,
         )
         for i in range(_TOPICS)
     ]
@@ -88,14 +94,17 @@ def _free_port() -> int:
         return int(probe.getsockname()[1])
 
 
-def run(layout: str | None, settle_s: float, measure_s: float) -> dict[str, object]:
+def run(
+    layout: str | None, settle_s: float, measure_s: float, batched: bool = False
+) -> dict[str, object]:
     """One publisher and one recorder; return the recorder's CPU over ``measure_s``."""
     port = _free_port()
     total_s = settle_s + measure_s + 3.0
     env = dict(os.environ)
     env.pop("ZENOH_RUNTIME", None)
     publisher = subprocess.Popen(
-        [sys.executable, __file__, "--publish", str(port), str(total_s + 2.0)], env=env
+        [sys.executable, __file__, "--publish", str(port), str(total_s + 2.0), str(int(batched))],
+        env=env,
     )
     recorder_env = dict(env)
     if layout is not None:
@@ -131,14 +140,22 @@ def run(layout: str | None, settle_s: float, measure_s: float) -> dict[str, obje
 
 def main() -> None:
     """Run the rounds (or, as the child, publish)."""
-    if len(sys.argv) == 4 and sys.argv[1] == "--publish":
-        publish(int(sys.argv[2]), float(sys.argv[3]))
+    if len(sys.argv) == 5 and sys.argv[1] == "--publish":
+        publish(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1")
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--settle-s", type=float, default=4.0)
     parser.add_argument("--measure-s", type=float, default=8.0)
+    parser.add_argument("--batching", action="store_true", help="express per message vs tick")
     args = parser.parse_args()
+    if args.batching:
+        for round_index in range(args.rounds):
+            for batched in (False, True):
+                figures = run(LAYOUTS["project default"], args.settle_s, args.measure_s, batched)
+                express = "the tick's last" if batched else "every message"
+                print(json.dumps({"round": round_index, "express": express, **figures}), flush=True)
+        return
     for round_index in range(args.rounds):
         for name, layout in LAYOUTS.items():
             figures = run(layout, args.settle_s, args.measure_s)

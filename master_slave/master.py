@@ -232,8 +232,9 @@ class MasterProcess:
         entities: list[Any] = []
         try:
             ros2 = self._ros2 = Ros2Outputs(
-                session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS)
-            )
+                session, ROLE, config.device, (ros2_topics.MEASURED_JS, ros2_topics.SETPOINT_JS),
+                followed=(ros2_topics.SETPOINT_JS,),  # the measured state comes next, each tick
+            )  # fmt: skip
             if config.haptic_feedback:
                 ros2.node.subscription(
                     ros2_topics.topic_name(config.slave, ros2_topics.ESTIMATED_CF),

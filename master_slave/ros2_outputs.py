@@ -8,7 +8,8 @@ messages on the topics of :mod:`teleop_force.ros2.topics`: the slave its
 ``/<device>/status``; the master its ``/<device>/measured_js`` and ``/<device>/setpoint_js``.
 Joint names are the model's (``model_q1 model_q2 model_q3_absolute``): the plants run in the
 model's coordinates. The header stamp is the sample time; the attachment's source time the
-moment of publication. The processes subscribe through :attr:`Ros2Outputs.node`.
+moment of publication. A tick's messages leave in one Zenoh batch: all but the tick's last
+are declared ``followed`` (not express). The processes subscribe through :attr:`Ros2Outputs.node`.
 """
 
 from __future__ import annotations
@@ -34,8 +35,14 @@ class Ros2Outputs:
         role: str,
         device: str,
         kinds: Sequence[topics.Topic],
+        *,
+        followed: Sequence[topics.Topic] = (),
     ) -> None:
-        """Declare node ``teleop_force_<role>`` and a publisher per topic kind of ``device``."""
+        """Declare node ``teleop_force_<role>`` and a publisher per topic kind of ``device``.
+
+        ``followed``: the kinds whose message is always followed, in the same tick, by one of
+        another kind: they are not express, and wait to leave with it in one batch.
+        """
         codec.warm_up()  # rosbags compiles on first use: not on the loop's first tick
         self.node = Node(session, f"teleop_force_{role}")
         self.names = topics.model_joint_names(JOINTS)
@@ -44,7 +51,9 @@ class Ros2Outputs:
         self._setpoint = fast_cdr.JointStateLayout(self.names, velocities=False, efforts=False)
         self._wrench = fast_cdr.WrenchLayout(topics.BASE_FRAME)
         self._publishers: dict[str, Publisher] = {
-            topic.kind: self.node.publisher(topics.topic_name(device, topic), topic.ros_type)
+            topic.kind: self.node.publisher(
+                topics.topic_name(device, topic), topic.ros_type, express=topic not in followed
+            )
             for topic in kinds
         }
 

@@ -396,6 +396,7 @@ class SlaveProcess:
             ros2 = self._ros2 = Ros2Outputs(
                 session, ROLE, config.device,
                 (ros2_topics.MEASURED_JS, ros2_topics.TRUE_CF, ros2_topics.STATUS),
+                followed=(ros2_topics.MEASURED_JS,),  # the true force comes next, each tick
             )  # fmt: skip
             self._setpoints = ros2.node.subscription(
                 ros2_topics.topic_name(config.master, ros2_topics.SETPOINT_JS),

@@ -9,8 +9,10 @@ hears every hash of its type (``*`` in the hash chunk: Humble's ``TypeHashNotSup
 and hands its callback the payload and the parsed attachment. A sample without a valid
 attachment is counted in :attr:`Subscription.malformed` and dropped.
 
-Publishers declare reliable, keep-all QoS (Zenoh congestion control BLOCK, ``express``,
-priority REAL_TIME: the project's data streams), as rmw_zenoh maps that QoS.
+Publishers declare reliable, keep-all QoS (Zenoh congestion control BLOCK, priority
+REAL_TIME: the project's data streams), as rmw_zenoh maps that QoS; ``express`` unless the
+caller says the message is followed by another in the same tick
+(:mod:`teleop_force.transport.pubsub`).
 """
 
 from __future__ import annotations
@@ -35,14 +37,14 @@ SampleCallback = Callable[[bytes, Attachment], Any]
 class Publisher:
     """A publisher of one topic: ``publish(payload)`` puts it with the next attachment."""
 
-    def __init__(self, node: Node, entity: graph.Entity, key: str) -> None:
+    def __init__(self, node: Node, entity: graph.Entity, key: str, *, express: bool = True) -> None:
         """Declare the Zenoh publisher on ``key`` and the entity's liveliness token."""
         self.entity = entity
         self.key = key
         self.gid = entity.gid
         self._next_seq = 1
         self._lock = threading.Lock()
-        self._publisher = pubsub.declare_data_publisher(node.session, key)
+        self._publisher = pubsub.declare_data_publisher(node.session, key, express=express)
         self._token = pubsub.declare_token(node.session, entity.token_key)
 
     def publish(
@@ -214,12 +216,20 @@ class Node:
         return entity, info
 
     def publisher(
-        self, topic: str, ros_type: str, qos: graph.Qos = graph.KEEP_ALL_RELIABLE
+        self,
+        topic: str,
+        ros_type: str,
+        qos: graph.Qos = graph.KEEP_ALL_RELIABLE,
+        *,
+        express: bool = True,
     ) -> Publisher:
-        """Declare a publisher of ``ros_type`` on ``topic`` (resolved in the node namespace)."""
+        """Declare a publisher of ``ros_type`` on ``topic`` (resolved in the node namespace).
+
+        ``express=False``: its messages wait for the next express one of the session.
+        """
         entity, info = self._entity(graph.EntityKind.PUBLISHER, topic, ros_type, qos)
         key = graph.topic_key(self.domain_id, info.name, ros_type, info.type_hash)
-        publisher = Publisher(self, entity, key)
+        publisher = Publisher(self, entity, key, express=express)
         self._entities.append(publisher)
         return publisher
 

@@ -77,8 +77,11 @@ class Ros2Edge:
         self._diagnostics = fast_cdr.EstimateDiagnosticsLayout(self.names, topics.BASE_FRAME)
         codec.warm_up()  # rosbags compiles each type on first use: not on a 1 kHz path
         self.node = Node(session, NODE_NAME, domain_id=domain_id)
+        # the wrench waits for its diagnostics, published next: the two leave in one batch
         self.estimates = self.node.publisher(
-            topics.topic_name(device, topics.ESTIMATED_CF), topics.ESTIMATED_CF.ros_type
+            topics.topic_name(device, topics.ESTIMATED_CF),
+            topics.ESTIMATED_CF.ros_type,
+            express=False,
         )
         self.diagnostics = self.node.publisher(
             topics.topic_name(device, topics.ESTIMATE_DIAGNOSTICS),

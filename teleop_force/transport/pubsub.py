@@ -3,8 +3,12 @@
 Every function wraps ``zenoh.ZError`` in :class:`~teleop_force.errors.TransportError`.
 
 Publishers of data streams use congestion control BLOCK (a slow subscriber slows the
-publisher down instead of losing messages) and ``express`` (each message is sent at once,
-not batched: lower latency at 1 kHz). Zenoh 1.10 may drop what is published in the first
+publisher down instead of losing messages). A process that publishes several messages per
+tick declares the tick's last one ``express`` and the others not: the earlier ones wait in
+Zenoh's batch for the express one, which sends them all in one write, so each link carries
+one batch per tick instead of one per message (the receivers wake once; figures:
+docs/architecture.md, "One batch per tick"). A message alone on a link is sent at once
+either way. Zenoh 1.10 may drop what is published in the first
 milliseconds after a subscriber is matched, so a publisher that must not lose anything calls
 :func:`wait_for_subscribers` first: it waits for ``matching_status`` and then lets the
 routes settle for a moment before the stream starts.
@@ -33,7 +37,11 @@ def zenoh_error_text(exc: BaseException) -> str:
 def declare_data_publisher(
     session: zenoh.Session, key: str, *, express: bool = True
 ) -> zenoh.Publisher:
-    """Declare a reliable publisher for a 1 kHz data stream (BLOCK, express)."""
+    """Declare a reliable publisher for a 1 kHz data stream (BLOCK; ``express``: flush at once).
+
+    ``express=False`` for a message that is followed, in the same tick, by an express one of
+    the same process (module docstring).
+    """
     try:
         return session.declare_publisher(
             key,
