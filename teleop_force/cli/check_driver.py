@@ -340,8 +340,8 @@ def _wait_for(reader: DriverReader, kind: str, device: str, seconds: float, wher
         )
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add check-driver's flags to ``parser``."""
+def add_device_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--driver``, ``--device`` and ``--ros-domain-id``: which live driver, where."""
     parser.add_argument(
         "--driver", default="sensable-phantom", metavar="NAME|FILE",
         help="the driver description: a built-in (sensable-phantom) or a description file "
@@ -351,6 +351,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--device", required=True, help="the driver's device name: its topics are /<device>/..."
     )
     parser.add_argument(
+        "--ros-domain-id", type=int, default=None, metavar="D",
+        help="ROS 2 domain of the driver's topics (default: $ROS_DOMAIN_ID, else 0)",
+    )  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add check-driver's flags to ``parser``."""
+    add_device_arguments(parser)
+    parser.add_argument(
         "--seconds", type=float, default=DEFAULT_SECONDS, metavar="S",
         help=f"how long to read the driver's topics (default {DEFAULT_SECONDS:g}); move the "
         "arm through its workspace meanwhile",
@@ -359,10 +368,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--probe-force-n", type=float, default=None, metavar="F",
         help=f"also command F N (at most {MAX_PROBE_FORCE_N:g}) on servo_cf along x, y, z for "
         f"about {PROBE_DURATION_S:g} s, then zero, and check the efforts (default: no force)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ros-domain-id", type=int, default=None, metavar="D",
-        help="ROS 2 domain of the driver's topics (default: $ROS_DOMAIN_ID, else 0)",
     )  # fmt: skip
     add_zenoh_arguments(parser)
 
@@ -388,7 +393,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         node = Node(session, "teleop_force_check_driver", domain_id=args.ros_domain_id)
         try:
-            where = f"ROS domain {node.domain_id}, through {_endpoints(args)}"
+            where = f"ROS domain {node.domain_id}, through {endpoints_text(args)}"
             reader = DriverReader(node, device, forces=force_n is not None)
             servo = None  # declared now: matched with the driver's subscriber by the probe
             if force_n is not None:
@@ -467,7 +472,8 @@ def _check(
     return EXIT_OK if ok else EXIT_CHECK_FAILED
 
 
-def _endpoints(args: argparse.Namespace) -> str:
+def endpoints_text(args: argparse.Namespace) -> str:
+    """Return the ``--connect`` endpoints for a message (or "this machine's Zenoh peers")."""
     connect = list(getattr(args, "connect", None) or [])
     return ", ".join(connect) if connect else "this machine's Zenoh peers"
 

@@ -36,13 +36,24 @@ def _log(message: str) -> None:
 
 
 def _load_recordings(
-    paths: Sequence[str], n_joints: int | None = None, robot: str | None = None
+    paths: Sequence[str],
+    n_joints: int | None = None,
+    robot: str | None = None,
+    driver: str | None = None,
 ) -> list[Any]:
+    """Read every DATA; ``driver`` (``--driver``): the sessions' joint states are its."""
     from teleop_force.io.recordings import read_recording_with_notes
 
+    interface = None
+    if driver is not None:
+        from teleop_force.robots.registry import resolve_driver
+
+        interface = resolve_driver(driver)
     recordings = []
     for p in paths:
-        recording, notes = read_recording_with_notes(Path(p), n_joints=n_joints, robot=robot)
+        recording, notes = read_recording_with_notes(
+            Path(p), n_joints=n_joints, robot=robot, driver=interface
+        )
         for note in notes:
             _log(note)
         recordings.append(recording)
@@ -56,7 +67,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from teleop_force.robots.kinds import RobotKind
     from teleop_force.robots.registry import resolve_robot, robot_defaults
 
-    recordings = _load_recordings(args.data, robot=_reader_robot(args.robot))
+    recordings = _load_recordings(args.data, robot=_reader_robot(args.robot), driver=args.driver)
     n = recordings[0].q_rad.shape[1]
     description = resolve_robot(args.robot, n)
     defaults = robot_defaults(args.robot)  # the robot's best baseline (docs/cli.md)
@@ -110,7 +121,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from teleop_force.identification.dynamic_model import DynamicModel
 
     model = estimator_from_args(DynamicModel.load(args.model), args)
-    recordings = _load_recordings(args.data, model.n_joints, robot=_reader_robot(model.robot))
+    recordings = _load_recordings(
+        args.data, model.n_joints, robot=_reader_robot(model.robot), driver=args.driver
+    )
     # evaluate_model's figures, from the streaming estimator's numbers computed in batch
     result = evaluate_recordings(model, recordings)
     payload = {
@@ -153,7 +166,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from teleop_force.identification.dynamic_model import DynamicModel
 
     model = estimator_from_args(DynamicModel.load(args.model), args)
-    (recording,) = _load_recordings([args.data], model.n_joints, robot=_reader_robot(model.robot))
+    (recording,) = _load_recordings(
+        [args.data], model.n_joints, robot=_reader_robot(model.robot), driver=args.driver
+    )
     # the streaming estimator's numbers, computed over the whole recording at once
     estimates = BatchEstimator(model).estimate(recording.t_s, recording.q_rad, recording.tau_nm)
     _write_force_table(Path(args.output), recording.t_s, estimates.force_tip_in_base_n)
@@ -565,6 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(subparsers)
     _add_serve(subparsers)
     _add_check_driver(subparsers)
+    _add_excite(subparsers)
     _add_replay(subparsers)
     _add_export_json(subparsers)
     _add_bench(subparsers)
@@ -582,6 +598,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_json_flag(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
     parser.add_argument("--json", action="store_true", help=help_text)
+
+
+def _add_driver_flag(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--driver", default=None, metavar="NAME|FILE",
+        help="the sessions' joint states are this driver's, converted on reading: a built-in "
+        "(sensable-phantom) or a driver description file (default: the description a session "
+        "recorded by `teleop-force excite` carries; none: the model's coordinates)",
+    )  # fmt: skip
 
 
 def _add_output(
@@ -648,6 +673,7 @@ def _add_identify(subparsers: _Subparsers) -> None:
         " the wavelet network is kept only on joints where it beats the coupled CV there;"
         " every fallback is printed",
     )
+    _add_driver_flag(p)
     _add_output(p, "model file to write (JSON)", required=True)
     p.set_defaults(run=_cmd_identify)
 
@@ -657,6 +683,7 @@ def _add_evaluate(subparsers: _Subparsers) -> None:
     p.add_argument("model")
     p.add_argument("data", nargs="+")
     add_estimator_arguments(p)
+    _add_driver_flag(p)
     _add_json_flag(p)
     p.set_defaults(run=_cmd_evaluate)
 
@@ -666,6 +693,7 @@ def _add_estimate(subparsers: _Subparsers) -> None:
     p.add_argument("model")
     p.add_argument("data")
     add_estimator_arguments(p)
+    _add_driver_flag(p)
     _add_output(p, required=True)
     p.set_defaults(run=_cmd_estimate)
 
@@ -838,6 +866,24 @@ def _add_check_driver(subparsers: _Subparsers) -> None:
     )
     add_arguments(p)
     p.set_defaults(run=_cmd_check_driver)
+
+
+def _cmd_excite(args: argparse.Namespace) -> int:
+    from teleop_force.cli.excite import run
+
+    return run(args)
+
+
+def _add_excite(subparsers: _Subparsers) -> None:
+    from teleop_force.cli.excite import add_arguments
+
+    p = subparsers.add_parser(
+        "excite",
+        help="play the training trajectory through a live driver (servo_cp) and record it, "
+        "for identify",
+    )
+    add_arguments(p)
+    p.set_defaults(run=_cmd_excite)
 
 
 def _add_replay(subparsers: _Subparsers) -> None:

@@ -81,6 +81,7 @@ from teleop_force.io import cdr_messages as cdr
 from teleop_force.io.cdr_chunks import COMPRESSIONS, ChunkedMcapWriter, DirectFile
 from teleop_force.io.cdr_columns import read_joint_state_arrays, read_wrench_arrays
 from teleop_force.io.interchange_csv import Recording
+from teleop_force.robots.driver_interface import DriverInterface
 from teleop_force.ros2 import interfaces
 from teleop_force.transport import keys
 from teleop_force.transport import messages as msg
@@ -1471,7 +1472,11 @@ def _pick_device(reader: SessionReader, device: str | None) -> str:
     )
 
 
-def read_session_as_recording(path: str | os.PathLike[str], device: str | None = None) -> Recording:
+def read_session_as_recording(
+    path: str | os.PathLike[str],
+    device: str | None = None,
+    driver: DriverInterface | None = None,
+) -> Recording:
     """Turn a session into an interchange :class:`Recording` of one device.
 
     Samples are the ``measured_js`` messages of ``device`` ordered by their source stamp
@@ -1481,13 +1486,58 @@ def read_session_as_recording(path: str | os.PathLike[str], device: str | None =
     (held constant beyond its first and last sample).
     Without ``device``: the metadata's ``primary_device``, else the only device with joint
     states, else the only one of those with a force channel.
+    A driver's JointStates (a session recorded through a live driver) are converted with
+    ``driver``, else with the description the session's metadata carries
+    (:mod:`teleop_force.io.driver_session`).
     """
+    return read_session_with_notes(path, device, driver)[0]
+
+
+def read_session_with_notes(
+    path: str | os.PathLike[str],
+    device: str | None = None,
+    driver: DriverInterface | None = None,
+) -> tuple[Recording, tuple[str, ...]]:
+    """Like :func:`read_session_as_recording`, plus notes on what reading did."""
+    from teleop_force.io import driver_session
+
     reader = SessionReader(path)
     device = _pick_device(reader, device)
     js_topic = reader.stream_topic(device, MEASURED_JS)
-    cf_topic = reader.stream_topic(device, TRUE_CF)
     assert js_topic is not None  # _pick_device's contract
-    joint_states = read_joint_state_arrays(reader.path, js_topic)
+    from_metadata = driver is None
+    interface = (
+        driver_session.session_driver(reader.metadata, reader.path) if driver is None else driver
+    )
+    notes: tuple[str, ...] = ()
+    if interface is None:
+        try:
+            joint_states = read_joint_state_arrays(reader.path, js_topic)
+        except DataError as exc:
+            hint = driver_session.driver_hint(reader, js_topic)
+            if hint is None:
+                raise
+            raise DataError(f"{exc.problem}; {hint}", path=reader.path, column=js_topic) from None
+        t_ns, q_rad, tau_nm = joint_states.t_ns, joint_states.q_rad, joint_states.effort_nm
+    else:
+        converted = driver_session.read_driver_joint_states(reader, js_topic, interface)
+        t_ns, q_rad, tau_nm = converted.t_ns, converted.q_rad, converted.tau_nm
+        source = "from the recording's metadata" if from_metadata else "as given"
+        notes = (
+            f"{reader.path}: {js_topic} converted from driver {interface.name}'s conventions "
+            f"(the description {source}; names {', '.join(converted.names)}); velocities "
+            "derived from the angles"
+            + ("" if converted.stamped else "; no header stamps, timed by the source times"),
+        )
+    recording = _recording_of(reader, device, t_ns, np.hstack((q_rad, tau_nm)), q_rad.shape[1])
+    return recording, notes
+
+
+def _recording_of(
+    reader: SessionReader, device: str, t_ns: np.ndarray, table: np.ndarray, n_joints: int
+) -> Recording:
+    """Return the Recording of ``[q | tau]`` rows stamped ``t_ns``, with the device's true force."""
+    cf_topic = reader.stream_topic(device, TRUE_CF)
     f_stamps: list[int] = []
     forces: list[tuple[float, ...]] = []
     wrenches = None if cf_topic is None else read_wrench_arrays(reader.path, cf_topic)
@@ -1498,9 +1548,6 @@ def read_session_as_recording(path: str | os.PathLike[str], device: str | None =
             if isinstance(message, msg.ContactForce):
                 f_stamps.append(message.t_ns)
                 forces.append(message.f_n)
-    n_joints = joint_states.n_joints
-    t_ns = joint_states.t_ns
-    table = np.hstack((joint_states.q_rad, joint_states.effort_nm))
     order = np.argsort(t_ns, kind="stable")
     t_ns, table = t_ns[order], table[order]
     keep = np.concatenate(([True], np.diff(t_ns) > 0))

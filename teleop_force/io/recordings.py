@@ -12,9 +12,13 @@ the robot a model was identified for) only checks that the data fits the robot.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from teleop_force.errors import DataError
 from teleop_force.io.interchange_csv import Recording, read_interchange_csv
+
+if TYPE_CHECKING:
+    from teleop_force.robots.driver_interface import DriverInterface
 
 
 def read_recording(path: Path, n_joints: int | None = None, robot: str | None = None) -> Recording:
@@ -23,12 +27,21 @@ def read_recording(path: Path, n_joints: int | None = None, robot: str | None = 
 
 
 def read_recording_with_notes(
-    path: Path, n_joints: int | None = None, robot: str | None = None
+    path: Path,
+    n_joints: int | None = None,
+    robot: str | None = None,
+    driver: DriverInterface | None = None,
 ) -> tuple[Recording, tuple[str, ...]]:
-    """Like :func:`read_recording`, plus notes on what reading did (rows dropped...)."""
+    """Like :func:`read_recording`, plus notes on what reading did (rows dropped...).
+
+    ``driver``: a session's joint states are this driver's, converted with it (a ``.mcap``
+    only; without it, a session recorded through a driver names its own description).
+    """
     path = Path(path)
     if not path.exists():
         raise DataError("no such file", path=path)
+    if driver is not None and path.suffix.lower() != ".mcap":
+        raise DataError("a driver description applies to .mcap sessions only", path=path)
     if path.is_dir():
         from teleop_force.io.teststand_logs import is_teststand_folder, read_teststand_folder
         from teleop_force.robots.teststand import NAME
@@ -51,9 +64,9 @@ def read_recording_with_notes(
             return trajectory.recording, (trajectory.note(),)
         return read_interchange_csv(path, n_joints=n_joints), ()
     if suffix == ".mcap":
-        from teleop_force.io.mcap_session import read_session_as_recording
+        from teleop_force.io.mcap_session import read_session_with_notes
 
-        return read_session_as_recording(path), ()
+        return read_session_with_notes(path, driver=driver)
     raise DataError(
         f"unsupported recording type {suffix!r} (expected .csv, .mcap or a test-stand folder)",
         path=path,

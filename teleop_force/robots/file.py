@@ -86,6 +86,8 @@ from teleop_force.robots.file_schema import (
 from teleop_force.schema import Finite, read_entry, shown
 
 SUFFIXES = (".json", ".toml")
+#: ``format`` of a stand-alone driver file (``version = 1``, one ``[driver]`` table).
+DRIVER_FORMAT = "teleop-force-driver"
 T = TypeVar("T")
 
 
@@ -229,22 +231,61 @@ def load_driver_interface(path: str | os.PathLike[str]) -> DriverInterface:
         raise DataError("no such driver description file", path=path)
     data = _parse(path)
     f = _Fields(path)
-    if data.get("format") == "teleop-force-driver":
-        try:
-            section = read_entry(data, DriverFile).driver
-        except ModelFileError as exc:
-            raise f.error(exc.column or "driver", exc.problem) from None
-    else:
-        if data.get("format") != "teleop-force-robot":
-            raise f.error("format", "expected 'teleop-force-driver' or 'teleop-force-robot'")
-        if "driver" not in data:
-            raise f.error("driver", "missing: the robot description has no [driver] table")
-        try:
-            section = read_entry(data["driver"], DriverSection)
-        except ModelFileError as exc:
-            column = f"driver.{exc.column}" if exc.column else "driver"
-            raise f.error(column, exc.problem) from None
+    if data.get("format") == DRIVER_FORMAT:
+        return driver_interface_from_document(data, path)
+    if data.get("format") != "teleop-force-robot":
+        raise f.error("format", "expected 'teleop-force-driver' or 'teleop-force-robot'")
+    if "driver" not in data:
+        raise f.error("driver", "missing: the robot description has no [driver] table")
+    try:
+        section = read_entry(data["driver"], DriverSection)
+    except ModelFileError as exc:
+        column = f"driver.{exc.column}" if exc.column else "driver"
+        raise f.error(column, exc.problem) from None
     return driver_interface_from_section(f, section)
+
+
+def driver_interface_from_document(data: object, source: str | os.PathLike[str]) -> DriverInterface:
+    """Build the interface of a parsed stand-alone driver file (``teleop-force-driver``).
+
+    ``source`` names where ``data`` came from in errors (a file, a recording's metadata).
+
+    Raises:
+        ModelError: a field is wrong (named, ``driver.positions[0].sign``).
+
+    """
+    f = _Fields(Path(source))
+    try:
+        section = read_entry(data, DriverFile).driver
+    except ModelFileError as exc:
+        raise f.error(exc.column or "driver", exc.problem) from None
+    return driver_interface_from_section(f, section)
+
+
+def driver_document(interface: DriverInterface) -> dict[str, Any]:
+    """Return ``interface`` as a stand-alone driver file's content (JSON-able).
+
+    :func:`driver_interface_from_document` reads it back to an equal interface.
+    """
+    return {
+        "format": DRIVER_FORMAT,
+        "version": 1,
+        "driver": {
+            "name": interface.name,
+            "base_frame": interface.base_frame,
+            "rate_hz": float(interface.rate_hz),
+            "publishes_velocity": bool(interface.publishes_velocity),
+            "effort_unit": interface.effort_unit,
+            "positions": [
+                {"joint": p.joint, "sign": p.sign, "offset_rad": p.offset_rad, "scale": p.scale}
+                for p in interface.positions
+            ],
+            "efforts": [{"joint": e.joint, "sign": e.sign} for e in interface.efforts],
+            "position_coupling": interface.coupling_p.tolist(),
+            "effort_coupling": interface.coupling_e.tolist(),
+            "base_rotation": interface.rotation.tolist(),
+        },
+    }
 
 
 def driver_interface_from_section(f: _Fields, section: DriverSection) -> DriverInterface:

@@ -122,3 +122,12 @@ def builtin_driver(name: str) -> DriverInterface:
         resources.files("teleop_force.robots") / "drivers" / BUILTIN_DRIVERS[name]
     ) as path:
         return load_driver_interface(path)
+
+
+def resolve_driver(name_or_path: str) -> DriverInterface:
+    """Return a built-in driver interface by name, else the one a description file holds."""
+    from teleop_force.robots.file import load_driver_interface
+
+    if name_or_path in BUILTIN_DRIVERS:
+        return builtin_driver(name_or_path)
+    return load_driver_interface(name_or_path)

@@ -980,12 +980,9 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
 
 def load_driver(name_or_path: str) -> DriverInterface:
     """Return a built-in driver interface by name, else the one a description file holds."""
-    from teleop_force.robots.file import load_driver_interface
-    from teleop_force.robots.registry import BUILTIN_DRIVERS, builtin_driver
+    from teleop_force.robots.registry import resolve_driver
 
-    if name_or_path in BUILTIN_DRIVERS:
-        return builtin_driver(name_or_path)
-    return load_driver_interface(name_or_path)
+    return resolve_driver(name_or_path)
 
 
 def _endpoints(args: argparse.Namespace) -> str:
