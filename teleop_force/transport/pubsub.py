@@ -24,6 +24,7 @@ from typing import Any, Final
 import zenoh
 
 from teleop_force.errors import ConfigurationError, TransportError
+from teleop_force.transport._thread_state import pin_thread_state
 
 #: Time given to a fresh match before the first message that must not be lost.
 DEFAULT_SETTLE_S: Final = 0.1
@@ -65,9 +66,18 @@ def declare_subscriber(
     ``direct``: run ``callback`` on the Zenoh thread that receives the sample (zenoh-python's
     ``Callback(indirect=False)``) instead of handing it to a Python thread first: no thread
     hop per sample, for short callbacks that must not add latency (the 1 kHz paths). Such a
-    callback holds up that Zenoh thread while it runs.
+    callback holds up that Zenoh thread while it runs. The thread keeps one Python thread
+    state from its first sample on (:mod:`teleop_force.transport._thread_state`) instead of
+    creating and destroying one per sample.
     """
-    handler: Any = zenoh.handlers.Callback(callback, indirect=False) if direct else callback
+    handler: Any = callback
+    if direct:
+
+        def on_sample(sample: zenoh.Sample) -> Any:
+            pin_thread_state()
+            return callback(sample)
+
+        handler = zenoh.handlers.Callback(on_sample, indirect=False)
     try:
         return session.declare_subscriber(key, handler)
     except zenoh.ZError as exc:
