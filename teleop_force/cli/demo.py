@@ -40,10 +40,14 @@ keeps 5 % of every CPU for ordinary work whatever the real-time tasks do
 stop reading its sockets and the publishers it subscribes to (congestion control BLOCK) would
 wait for it.
 
-The supervisor's own statistics are cheap: its subscribers queue samples in Zenoh ring
-channels (no Python on Zenoh's receive threads) drained by one thread every 50 ms, which
-unpacks each estimate and true force without building a message object
-(:func:`~teleop_force.transport.messages.unpack_force_estimate`, :class:`_Monitor`).
+The figures of the slave's estimates (loss, accuracy during contact, the first estimate, the
+slave's state) are kept by the session recorder, which receives every message anyway
+(``--monitor``, :class:`~teleop_force.service.session_monitor.SessionMonitor`); the
+supervisor asks its statistics queryable for them (:class:`_RecorderMonitor`) and receives
+no 1 kHz stream itself. With ``--no-record`` the supervisor subscribes itself: ring channels
+(no Python on Zenoh's receive threads) drained by one thread every 50 ms (:class:`_Monitor`).
+The summary's ``estimates_at_supervisor`` and ``true_forces_at_supervisor`` are those
+figures, whichever process kept them.
 
 Summary JSON
 ------------
@@ -107,7 +111,7 @@ from typing import IO, Any, Final
 
 import zenoh
 
-from teleop_force.errors import ConfigurationError, DataError, MessageError, TransportError
+from teleop_force.errors import ConfigurationError, DataError, TransportError
 from teleop_force.models import DEFAULT_MODEL_PATH
 from teleop_force.process.lifetime import (
     SUPERVISOR_PID_ENV,
@@ -122,12 +126,12 @@ from teleop_force.process.warm_up import (
     is_warm,
     warm_up,
 )
-from teleop_force.ros2 import codec, streams, topics
+from teleop_force.ros2 import topics
 from teleop_force.ros2.attachment import Attachment
 from teleop_force.ros2.node import Node, QueueSubscription
 from teleop_force.service.accuracy import AccuracyConfig, ForceAccuracy
+from teleop_force.service.session_monitor import MONITORED, SessionMonitor
 from teleop_force.transport import keys
-from teleop_force.transport import messages as m
 from teleop_force.transport.pubsub import (
     declare_liveliness_subscriber,
     query_json,
@@ -408,110 +412,156 @@ class _Presence:
 #: Samples a monitor channel holds (about 30 s of a 2 kHz stall); beyond, the oldest go
 #: (and count as lost): the supervisor never blocks a publisher.
 _CHANNEL_CAPACITY: Final = 1 << 16
-_SEQ_MASK: Final = 0xFFFF_FFFF
-_DECODE_TRUE_FORCE: Final = streams.decoder(topics.TRUE_CF)
 #: Where each process listens for its peers' direct links (a free port on loopback).
 _ANY_LOOPBACK_PORT: Final = "tcp/127.0.0.1:0"
 #: How often the monitor drains its channels [s].
 _DRAIN_PERIOD_S: Final = 0.05
+#: How often the supervisor asks the recorder for the figures while waiting for the first
+#: estimate [s].
+_FIRST_ESTIMATE_POLL_S: Final = 0.05
 
 
 class _Monitor:
-    """The supervisor's own ROS 2 subscriptions: estimates, true forces, slave status.
+    """The supervisor's own ROS 2 subscriptions to the slave's estimates, true forces, status.
 
-    Cheap by construction: the subscriptions queue samples in Zenoh's ring channels (no
-    Python, no GIL on Zenoh's receive threads), and one worker thread drains them every
-    ``_DRAIN_PERIOD_S``, decoding with :mod:`teleop_force.ros2.codec`. Loss is counted from
-    the attachments' sequence numbers. The accuracy figure pairs an estimate with the true
-    force of the same tick: its ``source_sequence`` (the slave's JointState sequence number)
-    equals the sequence number of the slave's true force, published in the same tick.
+    For a demo that does not record (the recorder keeps the figures otherwise:
+    :class:`_RecorderMonitor`). Cheap by construction: the subscriptions queue samples in
+    Zenoh's ring channels (no Python, no GIL on Zenoh's receive threads), and one worker
+    thread drains them every ``_DRAIN_PERIOD_S`` into a
+    :class:`~teleop_force.service.session_monitor.SessionMonitor`.
     """
 
     def __init__(self, accuracy: AccuracyConfig) -> None:
-        self.accuracy = ForceAccuracy(accuracy)
-        self.estimates = SequenceTracker()
-        self.true_forces = SequenceTracker()
-        self.malformed = 0
-        #: Publish time (ns since the epoch) and source seq of the first estimate received.
-        self.first_estimate_ns: int | None = None
-        self.first_source_seq: int | None = None
-        self.state = "unknown"
-        self.reason = ""
-        self.holds_seen = 0
+        self._accuracy_config = accuracy
+        self.session_monitor: SessionMonitor | None = None
         self._node: Node | None = None
-        self._joiner = streams.EstimateJoiner(self._on_estimate, max_unpaired=_CHANNEL_CAPACITY)
         self._subscriptions: list[tuple[QueueSubscription, Callable[[bytes, Attachment], None]]]
         self._subscriptions = []
         self._lock = threading.Lock()  # one drain at a time (worker, final drain)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
+        self._closed_malformed = 0
 
     def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
         """Declare the node and its ring-channel subscriptions, start the worker."""
+        monitor = self.session_monitor = SessionMonitor(slave, self._accuracy_config)
         node = self._node = Node(session, "teleop_force_demo")
-        for topic, handle in (
-            (topics.ESTIMATED_CF, self._joiner.on_wrench),
-            (topics.ESTIMATE_DIAGNOSTICS, self._joiner.on_diagnostics),
-            (topics.TRUE_CF, self._on_true_force),
-            (topics.STATUS, self._on_status),
-        ):
-            subscription = node.queue_subscription(
-                topics.topic_name(slave, topic), topic.ros_type, _CHANNEL_CAPACITY
-            )
+        for topic in MONITORED:
+            name = topics.topic_name(slave, topic)
+            handle = monitor.handler(name)
+            assert handle is not None
+            subscription = node.queue_subscription(name, topic.ros_type, _CHANNEL_CAPACITY)
             self._subscriptions.append((subscription, handle))
         self._thread.start()
         return []
 
+    def _figures_monitor(self) -> SessionMonitor:
+        if self.session_monitor is None:
+            raise ConfigurationError("the monitor is not subscribed")
+        return self.session_monitor
+
+    @property
+    def estimates(self) -> SequenceTracker:
+        """Loss of the estimates."""
+        return self._figures_monitor().estimates
+
+    @property
+    def true_forces(self) -> SequenceTracker:
+        """Loss of the true forces."""
+        return self._figures_monitor().true_forces
+
+    @property
+    def state(self) -> str:
+        """The slave's last state."""
+        return self._figures_monitor().state
+
+    @property
+    def malformed(self) -> int:
+        """Samples dropped: undecodable, or without a valid attachment."""
+        return self._figures_monitor().malformed + self._closed_malformed
+
+    @property
+    def accuracy(self) -> ForceAccuracy:
+        """The accuracy figure."""
+        return self._figures_monitor().accuracy
+
+    def first_estimate(self) -> tuple[int, int] | None:
+        """``(header stamp [ns], source seq)`` of the first estimate, ``None`` before it."""
+        monitor = self._figures_monitor()
+        if monitor.first_estimate_ns is None or monitor.first_source_seq is None:
+            return None
+        return monitor.first_estimate_ns, monitor.first_source_seq
+
+    def figures(self, final: bool = False) -> dict[str, Any] | None:
+        """Return :meth:`SessionMonitor.figures`, the malformed including those of the channels."""
+        with self._lock:
+            figures = self._figures_monitor().figures()
+        figures["malformed"] = self.malformed
+        return figures
+
     def drain(self) -> None:
         """Process every sample received so far."""
+        monitor = self._figures_monitor()
         with self._lock:
             for subscription, handle in self._subscriptions:
                 while (received := subscription.try_recv()) is not None:
-                    self.take(handle, *received)
-
-    def take(
-        self, handle: Callable[[bytes, Attachment], None], payload: bytes, attachment: Attachment
-    ) -> None:
-        """Hand one sample to ``handle``; a sample that does not decode is counted, dropped."""
-        try:
-            handle(payload, attachment)
-        except MessageError:
-            self.malformed += 1
+                    monitor.take(handle, *received)
 
     def close(self) -> None:
         """Stop the worker thread after a last drain, then undeclare the node."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(5.0)
-        self.drain()
+        if self.session_monitor is not None:
+            self.drain()
         node, self._node = self._node, None
         if node is not None:
             node.close()
-        self.malformed += sum(s.malformed for s, _ in self._subscriptions)
+        self._closed_malformed += sum(s.malformed for s, _ in self._subscriptions)
         self._subscriptions = []
 
     def _run(self) -> None:
         while not self._stop.wait(_DRAIN_PERIOD_S):
             self.drain()
 
-    def _on_estimate(self, estimate: m.ForceEstimateMessage, attachment: Attachment) -> None:
-        if self.first_estimate_ns is None:
-            self.first_estimate_ns, self.first_source_seq = estimate.t_ns, estimate.source_seq
-        self.estimates.observe(estimate.seq)
-        self.accuracy.add_estimate(estimate.source_seq, estimate.f_n)
 
-    def _on_true_force(self, payload: bytes, attachment: Attachment) -> None:
-        seq = attachment.sequence_number & _SEQ_MASK
-        force = _DECODE_TRUE_FORCE(payload, seq)  # raises MessageError
-        self.true_forces.observe(seq)
-        self.accuracy.add_true(seq, force.f_n)
+class _RecorderMonitor:
+    """The figures of :class:`_Monitor`, kept by the session recorder (``--monitor``).
 
-    def _on_status(self, payload: bytes, attachment: Attachment) -> None:
-        status = codec.decode_status(payload, attachment.sequence_number & _SEQ_MASK)
-        state = status.state.name.lower()
-        if state == "holding" and self.state != "holding":
-            self.holds_seen += 1
-        self.state, self.reason = state, status.reason
+    The recorder receives every message anyway; the supervisor asks it for the figures on its
+    statistics queryable instead of receiving the 1 kHz streams a second time.
+    """
+
+    def __init__(self, query: Callable[[str, float], dict[str, Any] | None], slave: str) -> None:
+        self._query = query
+        self._key = keys.process_stats(slave, "recorder")
+        self._last: dict[str, Any] | None = None
+        self._asked_s = -math.inf
+
+    def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
+        """Nothing to declare: the recorder keeps the figures."""
+        return []
+
+    def close(self) -> None:
+        """Nothing to undeclare."""
+
+    def figures(self, final: bool = False) -> dict[str, Any] | None:
+        """Ask the recorder (it drains first); the last answer if it does not answer."""
+        stats = self._query(self._key, 2.0 if final else 0.5)
+        monitor = (stats or {}).get("monitor")
+        if isinstance(monitor, dict):
+            self._last = monitor
+        return self._last
+
+    def first_estimate(self) -> tuple[int, int] | None:
+        """``(header stamp [ns], source seq)`` of the first estimate, ``None`` before it."""
+        now = time.perf_counter()
+        if now - self._asked_s >= _FIRST_ESTIMATE_POLL_S:
+            self._asked_s = now
+            self.figures()
+        last = self._last or {}
+        stamp, seq = last.get("first_estimate_ns"), last.get("first_source_seq")
+        return None if stamp is None or seq is None else (int(stamp), int(seq))
 
 
 _LOOP_KEYS: Final = (
@@ -569,7 +619,11 @@ class DemoSupervisor:
         self.log_path = config.record_dir / f"demo-{stamp}.log"
         self.children: list[Child] = []
         self.presence = _Presence()
-        self.monitor = _Monitor(config.accuracy)
+        self.monitor: _Monitor | _RecorderMonitor = (
+            _RecorderMonitor(self._query, config.slave)
+            if config.record
+            else _Monitor(config.accuracy)
+        )
         self.session: zenoh.Session | None = None
         self.endpoint = ""
         self.failure = ""
@@ -708,7 +762,7 @@ class DemoSupervisor:
         """Wait for the service's first estimate; the run (and ``--duration``) starts there."""
         self.say("waiting for the first estimate")
         deadline = time.perf_counter() + self.config.startup_timeout_s
-        while self.monitor.first_estimate_ns is None:
+        while (first := self.monitor.first_estimate()) is None:
             dead = [c for c in self.children if c.name != "dashboard" and not c.running()]
             if self.stop.is_set():
                 self.failure = "interrupted before the first estimate"
@@ -723,12 +777,12 @@ class DemoSupervisor:
                 self.say(self.failure)
                 return False
             time.sleep(0.01)
-        self.first_estimate_s = (self.monitor.first_estimate_ns - self._start_wall_ns) * 1e-9
+        self.first_estimate_s = (first[0] - self._start_wall_ns) * 1e-9
         self._mark_running()
         until = "Ctrl-C" if self.config.duration_s is None else f"{self.config.duration_s:g} s"
         self.say(
             f"first estimate {self.first_estimate_s:.1f} s after the command "
-            f"(source seq {self.monitor.first_source_seq}); running until {until} (or Ctrl-C)"
+            f"(source seq {first[1]}); running until {until} (or Ctrl-C)"
         )
         return True
 
@@ -757,6 +811,7 @@ class DemoSupervisor:
         args = [
             "--record", str(self.recording), "--device", config.slave, "--master", config.master,
             "--model", str(config.model or DEFAULT_MODEL_PATH),
+            "--monitor", "--contact-threshold", repr(config.accuracy.contact_threshold_n),
         ]  # fmt: skip
         argv = _python_module("teleop_force.service.session_recorder", *args, *self._connect_args())
         child = Child("recorder", argv, log, nice=config.realtime_nice)
@@ -927,33 +982,42 @@ class DemoSupervisor:
         config = self.config
         service = self._query(keys.service_stats(config.slave), 0.5)
         slave = self._query(keys.process_stats(config.slave, "slave"), 0.5)
-        accuracy = self.monitor.accuracy
+        figures = self.monitor.figures() or {}
         js = (service or {}).get("joint_states", {})
-        lost = self._lost(service, slave)["total"]
-        relative = accuracy.summary()["relative_rms_error"] if int(elapsed_s) % 5 == 0 else None
+        lost = self._lost(service, slave, figures)["total"]
+        relative = None
+        if int(elapsed_s) % 5 == 0:
+            relative = (figures.get("force_error") or {}).get("relative_rms_error")
         line = (
-            f"t={elapsed_s:5.1f}s  F_est={_fmt_force(accuracy.latest_estimate)}  "
-            f"F_true={_fmt_force(accuracy.latest_true)} N  "
+            f"t={elapsed_s:5.1f}s  F_est={_fmt_force(figures.get('latest_estimate_n'))}  "
+            f"F_true={_fmt_force(figures.get('latest_true_n'))} N  "
             f"js {js.get('rate_hz', 0):6.1f} Hz  lost {lost}  "
             f"lat m->s {_ms((slave or {}).get('setpoints', {}).get('latency_ms'), 'p50')}/"
             f"{_ms((slave or {}).get('setpoints', {}).get('latency_ms'), 'p99')} ms  "
             f"s->est {_ms((service or {}).get('latency_ms'), 'p50')}/"
             f"{_ms((service or {}).get('latency_ms'), 'p99')} ms  "
-            f"{self.monitor.state}"
+            f"{figures.get('state', 'unknown')}"
         )
         if relative is not None:
             line += f"  rms err (contact) {relative:.1%}"
         self.say(line)
 
-    def _lost(self, service: dict[str, Any] | None, slave: dict[str, Any] | None) -> dict[str, int]:
+    def _lost(
+        self,
+        service: dict[str, Any] | None,
+        slave: dict[str, Any] | None,
+        figures: dict[str, Any] | None,
+    ) -> dict[str, int]:
         parts = {
             "setpoints_at_slave": int((slave or {}).get("setpoints", {}).get("lost", 0)),
             "joint_states_at_service": int((service or {}).get("joint_states", {}).get("lost", 0)),
             "joint_states_dropped_by_service": int(
                 (service or {}).get("joint_states", {}).get("overflow_dropped", 0)
             ),
-            "estimates_at_supervisor": self.monitor.estimates.lost,
-            "true_forces_at_supervisor": self.monitor.true_forces.lost,
+            "estimates_at_supervisor": int(((figures or {}).get("estimates") or {}).get("lost", 0)),
+            "true_forces_at_supervisor": int(
+                ((figures or {}).get("true_forces") or {}).get("lost", 0)
+            ),
             "dropped_by_recorder": int(
                 ((self._recorder_stats or {}).get("recorder") or {}).get("dropped", 0)
             ),
@@ -985,6 +1049,7 @@ class DemoSupervisor:
                 if config.record
                 else None
             ),
+            "monitor": self.monitor.figures(final=True),
         }
 
     def _stop_children(self) -> None:
@@ -1000,10 +1065,11 @@ class DemoSupervisor:
     def _summary(self, final: dict[str, Any]) -> dict[str, Any]:
         service, slave, master = final.get("service"), final.get("slave"), final.get("master")
         self._recorder_stats = final.get("recorder")
-        lost = self._lost(service, slave)
+        figures = final.get("monitor") or self.monitor.figures(final=True) or {}
+        lost = self._lost(service, slave, figures)
         setpoint_latency = (slave or {}).get("setpoints", {}).get("latency_ms") or {}
         estimate_latency = (service or {}).get("latency_ms") or {}
-        accuracy = self.monitor.accuracy.summary()
+        accuracy = figures.get("force_error") or ForceAccuracy(self.config.accuracy).summary()
         running = self.ended_s - self.running_s if self.running_s else 0.0
         coverage = _estimate_coverage(service, slave)
         return {
@@ -1054,7 +1120,7 @@ class DemoSupervisor:
             "malformed_dropped": {
                 "service": (service or {}).get("malformed", {}).get("dropped"),
                 "slave": (slave or {}).get("setpoints", {}).get("malformed"),
-                "supervisor": self.monitor.malformed,
+                "supervisor": figures.get("malformed"),
             },
             "slave_holds": (slave or {}).get("holds"),
             "cpu_percent": self.cpu_percent,

@@ -57,6 +57,10 @@ _MAX_KEYS: Final = 4096
 _ATTACHMENT_HEAD: Final = struct.Struct("<qq")
 
 
+#: ``observer(topic, payloads, attachments)``: the samples of one topic a drain wrote.
+Observer = Callable[[str, list[bytes], list[bytes]], None]
+
+
 def recorded_key(domain_id: int) -> str:
     """Return the key expression recorded: every data key of the domain."""
     if not isinstance(domain_id, int) or domain_id < 0:
@@ -73,6 +77,9 @@ class Ros2Recorder:
         on_malformed: Called as ``on_malformed(key, error)`` (from the drain thread) for each
             sample dropped.
         domain_id: The ROS domain (default ``ROS_DOMAIN_ID``).
+        observer: Called as ``observer(topic, payloads, attachments)`` (from the drain thread,
+            one call per topic per drain, in arrival order) with the samples that have a valid
+            attachment, before they are written: the payloads and the attachments' bytes.
 
     """
 
@@ -83,6 +90,7 @@ class Ros2Recorder:
         on_malformed: Callable[[str, Exception], None] | None = None,
         *,
         domain_id: int | None = None,
+        observer: Observer | None = None,
     ) -> None:
         """Prepare the recorder; nothing is subscribed until :meth:`start`."""
         self.session = session
@@ -96,6 +104,7 @@ class Ros2Recorder:
         #: Samples dropped (reported to ``on_malformed``).
         self.malformed = 0
         self._on_malformed = on_malformed
+        self._observer = observer
         self._topics: dict[str, tuple[str, str]] = {}  # key -> (topic, type), parsed once
         self._subscriber: Any = None
         self._drained_ns = 0
@@ -168,15 +177,19 @@ class Ros2Recorder:
             self._drop(key, exc, len(payloads))
             return
         kept: list[bytes] = []
+        kept_raw: list[bytes] = []
         heads: list[tuple[int, int]] = []
         for payload, raw in zip(payloads, attachments, strict=True):
             if raw is None or len(raw) != ATTACHMENT_SIZE or raw[16] != GID_SIZE:
                 self._drop(topic, MessageError("sample without a valid rmw_zenoh attachment"))
                 continue
             kept.append(payload)
+            kept_raw.append(raw)
             heads.append(_ATTACHMENT_HEAD.unpack_from(raw))
         if not kept:
             return
+        if self._observer is not None:
+            self._observer(topic, kept, kept_raw)
         seq = np.fromiter((h[0] for h in heads), dtype=np.int64, count=len(heads))
         source_ns = np.fromiter((h[1] for h in heads), dtype=np.int64, count=len(heads))
         log_ns = np.clip(source_ns, earliest_ns, taken_ns)

@@ -14,8 +14,14 @@ Foxglove's panels and rosbag2 read the session as a ROS 2 bag. A sample whose ke
 topic key or that has no valid attachment is counted as malformed and dropped.
 ``teleop-force demo`` records with it.
 
+With ``--monitor`` it also keeps the demo's live figures of ``--device``'s estimates (loss,
+accuracy during contact, first estimate, the slave's state:
+:class:`~teleop_force.service.session_monitor.SessionMonitor`) from the samples it records, so
+the demo's supervisor need not receive the 1 kHz streams a second time.
+
 It answers ``omni/<device>/stats/recorder`` (JSON: the recorder's counters, the malformed
-messages by key) and holds the token ``omni/<device>/alive/recorder``; it stops on SIGINT /
+messages by key, ``monitor``: the figures or ``None``; what has arrived is drained first) and
+holds the token ``omni/<device>/alive/recorder``; it stops on SIGINT /
 SIGTERM or ``--duration`` and closes the file (what arrived is written first).
 """
 
@@ -34,9 +40,11 @@ import zenoh
 from teleop_force.errors import ConfigurationError, TeleopForceError
 from teleop_force.io.mcap_session import DEFAULT_FLUSH_INTERVAL_S, SessionWriter
 from teleop_force.process.lifetime import StopSignal, log, write_json
+from teleop_force.service.accuracy import AccuracyConfig
 from teleop_force.service.controls import create_exclusively
 from teleop_force.service.counters import MalformedCounter
 from teleop_force.service.ros2_recorder import PROFILE, Ros2Recorder
+from teleop_force.service.session_monitor import SessionMonitor
 from teleop_force.transport import keys
 from teleop_force.transport.pubsub import declare_json_queryable, declare_token, undeclare_all
 from teleop_force.transport.session import open_session, options_from_args
@@ -45,7 +53,10 @@ ROLE: Final = "recorder"
 
 
 class SessionRecorder:
-    """A :class:`Ros2Recorder` with the process's statistics queryable and token."""
+    """A :class:`Ros2Recorder` with the process's statistics queryable and token.
+
+    ``monitor``: also feed it the samples of its device's topics (module docstring).
+    """
 
     def __init__(
         self,
@@ -54,15 +65,32 @@ class SessionRecorder:
         device: str,
         *,
         domain_id: int | None = None,
+        monitor: SessionMonitor | None = None,
     ) -> None:
         """Prepare the recorder on ``writer``; nothing is subscribed until :meth:`start`."""
         self.session = session
         self.writer = writer
         self.device = keys.validate_chunk(device)
         self.malformed = MalformedCounter()
+        self.monitor = monitor
         self._lock = threading.Lock()
-        self.recorder = Ros2Recorder(session, writer, self._count_malformed, domain_id=domain_id)
+        self._monitor_lock = threading.Lock()
+        self.recorder = Ros2Recorder(
+            session,
+            writer,
+            self._count_malformed,
+            domain_id=domain_id,
+            observer=None if monitor is None else self._observe,
+        )
         self._entities: list[Any] = []
+
+    def _observe(self, topic: str, payloads: list[bytes], attachments: list[bytes]) -> None:
+        monitor = self.monitor
+        if monitor is None or monitor.handler(topic) is None:
+            return
+        with self._monitor_lock:
+            for payload, attachment in zip(payloads, attachments, strict=True):
+                monitor.take_raw(topic, payload, attachment)
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:
@@ -93,15 +121,24 @@ class SessionRecorder:
         undeclare_all(*reversed(entities))
 
     def stats(self) -> dict[str, Any]:
-        """JSON statistics: samples received, the recorder's counters, malformed by key."""
+        """JSON statistics: received, the recorder's counters, malformed by key, ``monitor``.
+
+        What has arrived is drained first, so the figures include it.
+        """
+        self.recorder.drain()
         with self._lock:
             malformed = self.malformed.to_dict()
+        monitor = None
+        if self.monitor is not None:
+            with self._monitor_lock:
+                monitor = self.monitor.figures()
         return {
             "role": ROLE,
             "device": self.device,
             "received": self.recorder.received,
             "recorder": self.recorder.stats(),
             "malformed": malformed,
+            "monitor": monitor,
         }
 
 
@@ -120,6 +157,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--record-flush-s", type=float, default=DEFAULT_FLUSH_INTERVAL_S, metavar="S",
         help=f"hand chunks to the OS at least every S s (default {DEFAULT_FLUSH_INTERVAL_S:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--monitor", action="store_true",
+        help="also keep the demo's live figures of --device's estimates (statistics: monitor)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--contact-threshold", type=float, default=AccuracyConfig().contact_threshold_n,
+        metavar="N", help="with --monitor: true force above which a sample counts as contact",
     )  # fmt: skip
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S s")
     parser.add_argument(
@@ -147,6 +192,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
         if args.master is not None:
             metadata["master_device"] = keys.validate_chunk(args.master, "master device id")
+        monitor = None
+        if args.monitor:
+            monitor = SessionMonitor(args.device, AccuracyConfig(args.contact_threshold))
         writer = SessionWriter(
             path, metadata, flush_interval_s=args.record_flush_s, profile=PROFILE
         )
@@ -155,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log(ROLE, f"error: {exc}")
         return 2
     try:
-        recorder = SessionRecorder(session, writer, args.device).start()
+        recorder = SessionRecorder(session, writer, args.device, monitor=monitor).start()
         gc.collect()
         gc.freeze()
         log(ROLE, f"recording to {path}")

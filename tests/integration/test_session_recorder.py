@@ -150,3 +150,46 @@ def test_the_recorder_has_no_ros2_flag_any_more() -> None:
 def test_queue_subscriber_refuses_an_empty_fifo(zenoh_pair: Any) -> None:
     with pytest.raises(ConfigurationError, match="queue capacity"):
         declare_queue_subscriber(zenoh_pair.listener, keys.measured_js("slave"), 0)
+
+
+def test_the_recorder_keeps_the_demo_monitor_figures(zenoh_pair: Any, tmp_path: Path) -> None:
+    from teleop_force.service.session_monitor import SessionMonitor
+
+    writer = SessionWriter(tmp_path / "m.mcap", {"primary_device": "slave"}, profile="ros2")
+    monitor = SessionMonitor("slave")
+    recorder = SessionRecorder(zenoh_pair.listener, writer, "slave", monitor=monitor).start()
+    node = Node(zenoh_pair.connector, "monitor_test_publisher")
+    try:
+        true_cf = node.publisher("/slave/true_cf", interfaces.WRENCH_STAMPED)
+        wrench_pub = node.publisher("/slave/estimated_cf", interfaces.WRENCH_STAMPED)
+        diagnostics_pub = node.publisher(
+            "/slave/estimate_diagnostics", interfaces.ESTIMATE_DIAGNOSTICS
+        )
+        for publisher in (true_cf, wrench_pub, diagnostics_pub):
+            assert wait_for_subscribers(publisher.zenoh_publisher, 5.0)
+        time.sleep(0.1)
+        for k in range(1, 201):
+            stamp = 1_000 + k
+            attachment = true_cf.publish(
+                codec.encode_contact_force(m.ContactForce(k, stamp, (0.0, -2.0, 0.0)), "base"),
+                stamp,
+            )
+            estimate = m.ForceEstimateMessage(
+                k, stamp, attachment.sequence_number, (0.0, -1.8, 0.0), [0.0] * 3, [True] * 3,
+                [1.0] * 3, [0.0] * 3, [0.0] * 3,
+            )  # fmt: skip
+            wrench, diagnostics = codec.encode_estimate(estimate, (), topics.BASE_FRAME)
+            wrench_pub.publish(wrench, stamp)
+            diagnostics_pub.publish(diagnostics, stamp)
+        deadline = time.monotonic() + 5.0
+        while recorder.received < 600 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        figures = recorder.stats()["monitor"]
+    finally:
+        node.close()
+        recorder.close()
+    assert figures["estimates"] == {"received": 200, "lost": 0}
+    assert figures["true_forces"] == {"received": 200, "lost": 0}
+    assert figures["force_error"]["paired_samples"] == 200
+    assert figures["force_error"]["relative_rms_error"] == pytest.approx(0.1, rel=1e-9)
+    assert figures["malformed"] == 0
