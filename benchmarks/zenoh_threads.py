@@ -7,11 +7,14 @@ alternating rounds. Each run's CPU is read from ``/proc`` per thread over ``--me
 after a settling time; the publisher always runs the project's default layout::
 
     uv run python benchmarks/zenoh_threads.py [--rounds 2] [--measure-s 8] [--batching]
+                                              [--topics-per-tick 1,3,6]
 
 Prints one JSON line per run: the layout, the recorder's CPU in % of one core, by thread name.
 ``--batching`` instead compares, under the project's layout, a publisher whose six messages
 of a tick are all express with one whose tick's last message alone is express (the
 project's publishers: the others wait in Zenoh's batch and leave with it).
+``--topics-per-tick`` instead varies the topics of a tick (one batch a tick, the last
+express): what a receiver pays per batch and per sample.
 """
 
 from __future__ import annotations
@@ -37,8 +40,8 @@ _TOPICS = 6
 _HZ = 1000.0
 
 
-def publish(port: int, seconds: float, batched: bool = False) -> None:
-    """Publish ``_TOPICS`` topics at ``_HZ`` for ``seconds`` (run in a child process).
+def publish(port: int, seconds: float, batched: bool = False, n_topics: int = _TOPICS) -> None:
+    """Publish ``n_topics`` topics at ``_HZ`` for ``seconds`` (run in a child process).
 
     ``batched``: only each tick's last message is express.
     """
@@ -53,9 +56,9 @@ def publish(port: int, seconds: float, batched: bool = False) -> None:
         session.declare_publisher(
             f"0/bench/topic{i}/sensor_msgs::msg::dds_::JointState_/RIHS01_{'0' * 64}",
             congestion_control=zenoh.CongestionControl.BLOCK,
-            express=not batched or i == _TOPICS - 1,
+            express=not batched or i == n_topics - 1,
         )
-        for i in range(_TOPICS)
+        for i in range(n_topics)
     ]
     time.sleep(2.0)
     payload = bytes(160)
@@ -95,15 +98,21 @@ def _free_port() -> int:
 
 
 def run(
-    layout: str | None, settle_s: float, measure_s: float, batched: bool = False
+    layout: str | None,
+    settle_s: float,
+    measure_s: float,
+    batched: bool = False,
+    n_topics: int = _TOPICS,
 ) -> dict[str, object]:
     """One publisher and one recorder; return the recorder's CPU over ``measure_s``."""
     port = _free_port()
     total_s = settle_s + measure_s + 3.0
     env = dict(os.environ)
     env.pop("ZENOH_RUNTIME", None)
+    publisher_argv = [sys.executable, __file__, "--publish", str(port), str(total_s + 2.0)]
+    publisher_argv += [str(int(batched)), str(n_topics)]
     publisher = subprocess.Popen(
-        [sys.executable, __file__, "--publish", str(port), str(total_s + 2.0), str(int(batched))],
+        publisher_argv,
         env=env,
     )
     recorder_env = dict(env)
@@ -140,15 +149,27 @@ def run(
 
 def main() -> None:
     """Run the rounds (or, as the child, publish)."""
-    if len(sys.argv) == 5 and sys.argv[1] == "--publish":
-        publish(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1")
+    if len(sys.argv) == 6 and sys.argv[1] == "--publish":
+        publish(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1", int(sys.argv[5]))
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--settle-s", type=float, default=4.0)
     parser.add_argument("--measure-s", type=float, default=8.0)
     parser.add_argument("--batching", action="store_true", help="express per message vs tick")
+    parser.add_argument(
+        "--topics-per-tick", default=None, metavar="N[,N]", help="one batch a tick of N topics"
+    )
     args = parser.parse_args()
+    if args.topics_per_tick:
+        counts = [int(n) for n in args.topics_per_tick.split(",")]
+        for round_index in range(args.rounds):
+            for n_topics in counts:
+                figures = run(
+                    LAYOUTS["project default"], args.settle_s, args.measure_s, True, n_topics
+                )
+                print(json.dumps({"round": round_index, "topics_per_tick": n_topics, **figures}))
+        return
     if args.batching:
         for round_index in range(args.rounds):
             for batched in (False, True):
