@@ -14,13 +14,11 @@ Prints one JSON line per run: whether the thread state is kept, samples, CPU in 
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
 import os
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 _KEY = "0/bench/thread_state"
@@ -56,18 +54,17 @@ def subscribe(port: int, keep: bool, settle_s: float, measure_s: float) -> dict[
     """Subscribe with a direct callback; return the samples and CPU over ``measure_s``."""
     import zenoh
 
+    from teleop_force.transport._thread_state import pin_thread_state
     from teleop_force.transport.session import ZenohOptions, open_session
 
     session = open_session(
         ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
     )
-    kept: set[int] = set()
     count = [0]
 
     def on_sample(sample: zenoh.Sample) -> None:
-        if keep and threading.get_ident() not in kept:
-            kept.add(threading.get_ident())
-            ctypes.pythonapi.PyGILState_Ensure()
+        if keep:
+            pin_thread_state()
         sample.payload.to_bytes()
         count[0] += 1
 

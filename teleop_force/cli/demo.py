@@ -142,7 +142,6 @@ from teleop_force.transport.session import (
     listen_endpoint,
     open_session,
 )
-from teleop_force.transport.stream_stats import SequenceTracker
 
 DEFAULT_DASHBOARD_PORT: Final = 8080
 #: rmw_zenoh's router port (``rmw_zenohd``; its nodes connect to ``tcp/localhost:7447``).
@@ -431,23 +430,22 @@ class _Monitor:
     :class:`~teleop_force.service.session_monitor.SessionMonitor`.
     """
 
-    def __init__(self, accuracy: AccuracyConfig) -> None:
-        self._accuracy_config = accuracy
-        self.session_monitor: SessionMonitor | None = None
+    def __init__(self, slave: str, accuracy: AccuracyConfig) -> None:
+        self.session_monitor = SessionMonitor(slave, accuracy)
         self._node: Node | None = None
         self._subscriptions: list[tuple[QueueSubscription, Callable[[bytes, Attachment], None]]]
         self._subscriptions = []
         self._lock = threading.Lock()  # one drain at a time (worker, final drain)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="monitor", daemon=True)
-        self._closed_malformed = 0
+        self._channel_malformed = 0
 
-    def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
+    def subscribe(self, session: zenoh.Session) -> list[Any]:
         """Declare the node and its ring-channel subscriptions, start the worker."""
-        monitor = self.session_monitor = SessionMonitor(slave, self._accuracy_config)
+        monitor = self.session_monitor
         node = self._node = Node(session, "teleop_force_demo")
         for topic in MONITORED:
-            name = topics.topic_name(slave, topic)
+            name = topics.topic_name(monitor.device, topic)
             handle = monitor.handler(name)
             assert handle is not None
             subscription = node.queue_subscription(name, topic.ros_type, _CHANNEL_CAPACITY)
@@ -455,53 +453,23 @@ class _Monitor:
         self._thread.start()
         return []
 
-    def _figures_monitor(self) -> SessionMonitor:
-        if self.session_monitor is None:
-            raise ConfigurationError("the monitor is not subscribed")
-        return self.session_monitor
-
-    @property
-    def estimates(self) -> SequenceTracker:
-        """Loss of the estimates."""
-        return self._figures_monitor().estimates
-
-    @property
-    def true_forces(self) -> SequenceTracker:
-        """Loss of the true forces."""
-        return self._figures_monitor().true_forces
-
-    @property
-    def state(self) -> str:
-        """The slave's last state."""
-        return self._figures_monitor().state
-
-    @property
-    def malformed(self) -> int:
-        """Samples dropped: undecodable, or without a valid attachment."""
-        return self._figures_monitor().malformed + self._closed_malformed
-
-    @property
-    def accuracy(self) -> ForceAccuracy:
-        """The accuracy figure."""
-        return self._figures_monitor().accuracy
-
     def first_estimate(self) -> tuple[int, int] | None:
         """``(header stamp [ns], source seq)`` of the first estimate, ``None`` before it."""
-        monitor = self._figures_monitor()
+        monitor = self.session_monitor
         if monitor.first_estimate_ns is None or monitor.first_source_seq is None:
             return None
         return monitor.first_estimate_ns, monitor.first_source_seq
 
     def figures(self, final: bool = False) -> dict[str, Any] | None:
-        """Return :meth:`SessionMonitor.figures`, the malformed including those of the channels."""
+        """Return :meth:`SessionMonitor.figures`, with the samples the channels dropped."""
         with self._lock:
-            figures = self._figures_monitor().figures()
-        figures["malformed"] = self.malformed
+            figures = self.session_monitor.figures()
+        figures["malformed"] += self._channel_malformed
         return figures
 
     def drain(self) -> None:
         """Process every sample received so far."""
-        monitor = self._figures_monitor()
+        monitor = self.session_monitor
         with self._lock:
             for subscription, handle in self._subscriptions:
                 while (received := subscription.try_recv()) is not None:
@@ -512,12 +480,11 @@ class _Monitor:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(5.0)
-        if self.session_monitor is not None:
-            self.drain()
+        self.drain()
         node, self._node = self._node, None
         if node is not None:
             node.close()
-        self._closed_malformed += sum(s.malformed for s, _ in self._subscriptions)
+        self._channel_malformed += sum(s.malformed for s, _ in self._subscriptions)
         self._subscriptions = []
 
     def _run(self) -> None:
@@ -538,7 +505,7 @@ class _RecorderMonitor:
         self._last: dict[str, Any] | None = None
         self._asked_s = -math.inf
 
-    def subscribe(self, session: zenoh.Session, slave: str) -> list[Any]:
+    def subscribe(self, session: zenoh.Session) -> list[Any]:
         """Nothing to declare: the recorder keeps the figures."""
         return []
 
@@ -622,7 +589,7 @@ class DemoSupervisor:
         self.monitor: _Monitor | _RecorderMonitor = (
             _RecorderMonitor(self._query, config.slave)
             if config.record
-            else _Monitor(config.accuracy)
+            else _Monitor(config.slave, config.accuracy)
         )
         self.session: zenoh.Session | None = None
         self.endpoint = ""
@@ -690,7 +657,7 @@ class DemoSupervisor:
                     self.session, keys.alive_any(), self.presence.on_sample
                 )
             )
-            entities += self.monitor.subscribe(self.session, config.slave)
+            entities += self.monitor.subscribe(self.session)
             self.say(
                 f"zenoh router: {self.endpoint} (the processes are its peers, linked directly "
                 "to each other; ROS 2 nodes its clients; no multicast)"

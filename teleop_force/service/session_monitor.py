@@ -16,7 +16,7 @@ on subscriptions of the demo's own when nothing records. Not thread-safe: one ca
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Final
 
 from teleop_force.errors import MessageError
@@ -86,17 +86,24 @@ class SessionMonitor:
         except MessageError:
             self.malformed += 1
 
-    def take_raw(self, topic: str, payload: bytes, attachment: bytes) -> None:
-        """Take one sample of ``topic`` with its attachment's bytes (other topics: ignored)."""
+    def take_topic(
+        self, topic: str, payloads: Sequence[bytes], attachments: Sequence[bytes]
+    ) -> None:
+        """Take samples of ``topic`` with their attachments' bytes (other topics: ignored)."""
         handle = self._handlers.get(topic)
         if handle is None:
             return
-        try:
-            parsed = Attachment.decode(attachment)
-        except MessageError:
-            self.malformed += 1
-            return
-        self.take(handle, payload, parsed)
+        for payload, attachment in zip(payloads, attachments, strict=True):
+            try:
+                parsed = Attachment.decode(attachment)
+            except MessageError:
+                self.malformed += 1
+                continue
+            self.take(handle, payload, parsed)
+
+    def take_raw(self, topic: str, payload: bytes, attachment: bytes) -> None:
+        """Take one sample of ``topic`` with its attachment's bytes (other topics: ignored)."""
+        self.take_topic(topic, (payload,), (attachment,))
 
     def figures(self) -> dict[str, Any]:
         """JSON figures: first estimate, loss, state, holds, latest forces, accuracy."""

@@ -85,12 +85,9 @@ class SessionRecorder:
         self._entities: list[Any] = []
 
     def _observe(self, topic: str, payloads: list[bytes], attachments: list[bytes]) -> None:
-        monitor = self.monitor
-        if monitor is None or monitor.handler(topic) is None:
-            return
-        with self._monitor_lock:
-            for payload, attachment in zip(payloads, attachments, strict=True):
-                monitor.take_raw(topic, payload, attachment)
+        if self.monitor is not None:
+            with self._monitor_lock:
+                self.monitor.take_topic(topic, payloads, attachments)
 
     def _count_malformed(self, key: str, exc: Exception) -> None:
         with self._lock:

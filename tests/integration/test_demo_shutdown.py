@@ -131,8 +131,9 @@ def test_children_go_when_the_supervisor_is_killed(tmp_path):
 
 
 def test_monitor_drains_its_ring_channels(zenoh_pair):
-    monitor = demo._Monitor(AccuracyConfig())
-    subscribers = monitor.subscribe(zenoh_pair.listener, "mon_slave")
+    monitor = demo._Monitor("mon_slave", AccuracyConfig())
+    subscribers = monitor.subscribe(zenoh_pair.listener)
+    kept = monitor.session_monitor
     node = Node(zenoh_pair.connector, "test_slave")
     publishers = {
         topic: node.publisher(topics.topic_name("mon_slave", topic), topic.ros_type)
@@ -158,13 +159,13 @@ def test_monitor_drains_its_ring_channels(zenoh_pair):
             put(publishers[topics.ESTIMATE_DIAGNOSTICS], diagnostics, k)
         status = codec.encode_status(m.Status(0, 0, m.SafetyState.FOLLOWING, "ok"))
         put(publishers[topics.STATUS], status, 1)
-        wait_for(lambda: monitor.estimates.received == 300, 10.0, "the monitor to drain")
-        wait_for(lambda: monitor.state == "following", 10.0, "the status")
+        wait_for(lambda: kept.estimates.received == 300, 10.0, "the monitor to drain")
+        wait_for(lambda: kept.state == "following", 10.0, "the status")
     finally:
         monitor.close()
         node.close()
         for subscriber in subscribers:
             subscriber.undeclare()
-    assert monitor.true_forces.received == 300 and monitor.true_forces.lost == 0
-    assert monitor.estimates.lost == 0 and monitor.malformed == 0
-    assert monitor.accuracy.summary()["paired_samples"] == 300
+    assert kept.true_forces.received == 300 and kept.true_forces.lost == 0
+    assert kept.estimates.lost == 0 and monitor.figures()["malformed"] == 0
+    assert kept.accuracy.summary()["paired_samples"] == 300

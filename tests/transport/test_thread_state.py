@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -85,7 +86,7 @@ def test_pinning_is_idempotent_on_a_python_thread() -> None:
 
 def test_a_process_with_pinned_zenoh_threads_exits_cleanly() -> None:
     code = (
-        "import sys; sys.path.insert(0, 'tests/transport');"
+        f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r});"
         "from test_thread_state import _deliver;"
         "from teleop_force.transport._thread_state import pinned_threads;"
         "assert len(_deliver(True)) == 50 and pinned_threads() >= 1; print('ok')"
