@@ -121,8 +121,11 @@ _OLD_KINDS: Final = {
 }  # fmt: skip
 #: The ROS 2 types a session's ROS channels are decoded from (``ros2msg`` schemas).
 ROS2_TYPES: Final = interfaces.PUBLISHED_TYPES
-#: Estimate halves waiting for their other half, per device, at most.
-_MAX_PENDING_HALVES: Final = 1024
+#: An estimate half waits this long in log time for its other half, then is dropped [ns].
+#: A recorder writes the two halves of one estimate (published back to back) in the same or
+#: the next drain, so their log times differ by a drain's span at most; halves of one log time
+#: (a drain clamped into one instant) are never dropped, however many there are.
+_HALF_WAIT_NS: Final = 10_000_000_000
 
 
 @dataclass(frozen=True, order=True)
@@ -955,48 +958,59 @@ class _Loose:
 
 
 class _EstimateJoin:
-    """Pair one device's estimate halves (WrenchStamped, EstimateDiagnostics) by header stamp."""
+    """Pair one device's estimate halves (WrenchStamped, EstimateDiagnostics) by header stamp.
+
+    Halves come in log-time order; one waits :data:`_HALF_WAIT_NS` of log time for its other
+    half, then is forgotten (so memory is bounded by the halves of that span of the file).
+    """
 
     def __init__(self, path: Path, topic: str) -> None:
         self.path, self.topic = path, topic
-        self.wrenches: dict[int, tuple[int, Any]] = {}  # stamp -> (MCAP sequence, Wrench)
-        self.diagnostics: dict[int, Any] = {}  # stamp -> EstimateDiagnostics
+        # stamp -> (log time, MCAP sequence, Wrench) / (log time, EstimateDiagnostics), in
+        # log-time order (insertion order), so the oldest are first
+        self.wrenches: dict[int, tuple[int, int, Any]] = {}
+        self.diagnostics: dict[int, tuple[int, Any]] = {}
         self.malformed = 0
 
     def add(self, kind: str, record: Message) -> msg.ForceEstimateMessage | None:
         """Add one half; return the estimate once both halves of its stamp are in."""
         from teleop_force.ros2 import codec  # rosbags: for ROS 2 sessions only
 
+        oldest_kept_ns = record.log_time - _HALF_WAIT_NS
+        _forget_before(self.wrenches, oldest_kept_ns)
+        _forget_before(self.diagnostics, oldest_kept_ns)
         try:
             if kind == ESTIMATED_CF:
                 wrench = codec.decode_wrench(record.data)
-                diagnostics = self.diagnostics.pop(wrench.t_ns, None)
-                if diagnostics is None:
-                    _bounded_put(self.wrenches, wrench.t_ns, (record.sequence, wrench))
+                other = self.diagnostics.pop(wrench.t_ns, None)
+                if other is None:
+                    self.wrenches[wrench.t_ns] = (record.log_time, record.sequence, wrench)
                     return None
-                seq = record.sequence
+                seq, diagnostics = record.sequence, other[1]
             else:
                 diagnostics = codec.decode_estimate_diagnostics(record.data)
                 half = self.wrenches.pop(diagnostics.t_ns, None)
                 if half is None:
-                    _bounded_put(self.diagnostics, diagnostics.t_ns, diagnostics)
+                    self.diagnostics[diagnostics.t_ns] = (record.log_time, diagnostics)
                     return None
-                seq, wrench = half
+                _, seq, wrench = half
             return codec.estimate_message(seq, wrench, diagnostics)
         except MessageError:
             self.malformed += 1  # recorded as received; skipped (SessionReader.messages)
             return None
 
 
+def _forget_before(pending: dict[int, tuple[Any, ...]], oldest_kept_ns: int) -> None:
+    """Drop the halves logged before ``oldest_kept_ns`` (the first ones: log-time order)."""
+    while pending:
+        stamp = next(iter(pending))
+        if pending[stamp][0] >= oldest_kept_ns:
+            return
+        del pending[stamp]
+
+
 #: What :meth:`SessionReader._decode_ros2` returns for a message that does not decode.
 _MALFORMED: Any = object()
-
-
-def _bounded_put(pending: dict[int, Any], stamp: int, value: Any) -> None:
-    """Remember one half; forget the oldest beyond :data:`_MAX_PENDING_HALVES`."""
-    pending[stamp] = value
-    if len(pending) > _MAX_PENDING_HALVES:
-        del pending[next(iter(pending))]
 
 
 class SessionReader:

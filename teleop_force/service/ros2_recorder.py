@@ -141,10 +141,10 @@ class Ros2Recorder:
                 got[0].append(sample.payload.to_bytes())
                 raw = sample.attachment
                 got[1].append(None if raw is None else raw.to_bytes())
-            taken_ns = time.time_ns()
+            taken_ns = time.time_ns()  # the FIFO was found empty: what comes next is later
+            self._drained_ns = taken_ns
             for key, (payloads, attachments) in by_key.items():
                 self._write_topic(key, payloads, attachments, earliest_ns, taken_ns)
-            self._drained_ns = time.time_ns()
             self.received += count
             return count
 

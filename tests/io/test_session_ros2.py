@@ -138,6 +138,45 @@ def test_a_ros2_session_reads_as_the_projects_messages(tmp_path):
     assert recording.tau_nm[:, 1].tolist() == [0.5] * 50
 
 
+def _estimate_halves(k, stamp_ns):
+    estimate = m.ForceEstimateMessage(0, stamp_ns, k + 1, (0.0, 0.0, k + 0.5), (0.1,) * 3,
+                                      (True, False, True), (1.0,) * 3, (0.2,) * 3,
+                                      (0.3,) * 3)  # fmt: skip
+    return codec.encode_estimate(estimate, OMNI_MODEL_JOINT_NAMES, BASE_FRAME)
+
+
+def test_estimate_halves_of_one_log_time_are_all_joined_however_many(tmp_path):
+    """A recorder's drain written topic by topic and clamped into one instant: every wrench
+    first, then every diagnostics, all at one log time; each estimate is still joined."""
+    path, n = tmp_path / "s.mcap", 5000
+    halves = [_estimate_halves(k, T_NS + k) for k in range(n)]
+    with SessionWriter(path, {"primary_device": "slave"}, profile="ros2") as writer:
+        for k, (wrench, _) in enumerate(halves):
+            writer.write_ros2("/slave/estimated_cf", interfaces.WRENCH_STAMPED, wrench, k + 1,
+                              T_NS + k, T_NS)  # fmt: skip
+        for k, (_, diagnostics) in enumerate(halves):
+            writer.write_ros2("/slave/estimate_diagnostics", interfaces.ESTIMATE_DIAGNOSTICS,
+                              diagnostics, k + 1, T_NS + k, T_NS)  # fmt: skip
+    estimates = [e for _, _, e in SessionReader(path).messages(["/slave/estimated_cf"])]
+    assert sorted(e.source_seq for e in estimates) == list(range(1, n + 1))
+
+
+def test_a_half_without_its_other_half_is_dropped_and_the_rest_joined(tmp_path):
+    path = tmp_path / "s.mcap"
+    orphan, _ = _estimate_halves(0, T_NS - 1)
+    with SessionWriter(path, {"primary_device": "slave"}, profile="ros2") as writer:
+        writer.write_ros2("/slave/estimated_cf", interfaces.WRENCH_STAMPED, orphan, 1, T_NS, T_NS)
+        for k in range(1, 4):  # 20 s apart: far beyond any recorder's drain
+            t = T_NS + k * 20_000_000_000
+            wrench, diagnostics = _estimate_halves(k, t)
+            writer.write_ros2("/slave/estimate_diagnostics", interfaces.ESTIMATE_DIAGNOSTICS,
+                              diagnostics, k + 1, t, t)  # fmt: skip
+            writer.write_ros2("/slave/estimated_cf", interfaces.WRENCH_STAMPED, wrench, k + 1,
+                              t, t + 1)  # fmt: skip
+    estimates = [e for _, _, e in SessionReader(path).messages(["/slave/estimated_cf"])]
+    assert [e.source_seq for e in estimates] == [2, 3, 4]
+
+
 def test_joint_states_of_several_layouts_read_alike(tmp_path):
     from teleop_force.io.cdr_columns import read_joint_state_arrays
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -91,6 +92,41 @@ def test_an_idle_recorder_still_hands_its_chunks_to_the_os(
     finally:
         node.close()
         recorder.close()
+
+
+@pytest.mark.zenoh
+def test_a_message_arriving_while_a_drain_writes_keeps_its_source_time(
+    zenoh_session: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its log time is clamped into [FIFO found empty, next drain], not after the writing."""
+    writing, release = threading.Event(), threading.Event()
+    slow_write = SessionWriter.write_ros2_block
+
+    def write_slowly(self: SessionWriter, *args: Any, **kwargs: Any) -> None:
+        writing.set()
+        release.wait(10.0)
+        slow_write(self, *args, **kwargs)
+
+    monkeypatch.setattr(SessionWriter, "write_ros2_block", write_slowly)
+    writer = SessionWriter(tmp_path / "s.mcap", profile="ros2")
+    recorder = Ros2Recorder(zenoh_session, writer, domain_id=DOMAIN).start()
+    node = Node(zenoh_session, "recorder_unit_test", domain_id=DOMAIN)
+    try:
+        publisher = node.publisher("/slave/measured_js", interfaces.JOINT_STATE)
+        publisher.publish(_payload(0), time.time_ns())
+        assert writing.wait(10.0)  # the first drain took it and is writing now
+        during_ns = time.time_ns()
+        publisher.publish(_payload(1), during_ns)
+        time.sleep(0.05)
+        release.set()
+        _wait_until(lambda: recorder.received == 2)
+    finally:
+        release.set()
+        node.close()
+        recorder.close()
+    raw = list(SessionReader(writer.path).raw_messages())
+    assert raw[1].publish_time_ns == during_ns
+    assert raw[1].log_time_ns == during_ns
 
 
 def test_options_are_checked(tmp_path: Path) -> None:
